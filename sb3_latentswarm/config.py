@@ -1,0 +1,221 @@
+"""``SwarmConfig``: every constant of the paper, and every constant the paper leaves open, in one validated dataclass.
+
+Defaults are the paper's (Sec. II and Sec. IV, "Simulation Results"). Fields marked *open* are not fixed by the paper;
+our choice and the reason are in ``docs/concepts.md`` (the paper-to-code table).
+
+Units: lengths in metres, one grid cell is ``cell_size`` metres wide, time in environment steps of ``dt`` seconds,
+power in mW (``tx_power_dbm`` is converted with :func:`dbm_to_mw`), energy in the paper's abstract units.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+LINK_MODES = ("channel", "full", "none")
+ACTION_FRAMES = ("world", "body")
+
+
+def dbm_to_mw(power_dbm: float) -> float:
+    """Convert a power in dBm to mW (20 dBm = 100 mW)."""
+    return 10.0 ** (power_dbm / 10.0)
+
+
+@dataclass(frozen=True)
+class SwarmConfig:
+    """Configuration of the swarm reconnaissance environment and of its air-to-air channel.
+
+    Paper constants (Sec. IV) keep the paper's value as default; *open* constants are our documented choices.
+    """
+
+    # --- Swarm and task (Sec. II, Sec. IV) ---
+    n_agents: int = 3
+    """N, the number of UAVs in the swarm."""
+    grid_width: int = 50
+    """Cells along x of the discretized grid X (paper: 50)."""
+    grid_height: int = 50
+    """Cells along y of the discretized grid X (paper: 50)."""
+    sensor_range: int = 2
+    """Sensor range in cells (paper: 2). The footprint is the (2r+1) x (2r+1) square of cells around the UAV's cell."""
+    max_steps: int = 1000
+    """T, the episode horizon in steps (paper: 1000)."""
+    initial_energy: float = 100.0
+    """b_0, the initial energy budget of every UAV (paper: 100)."""
+    energy_decay: float = 0.1
+    """kappa, the energy spent per step (paper: 0.1)."""
+    min_altitude: float = 5.0
+    """Lower altitude bound in metres (paper: 5 m)."""
+    max_altitude: float = 20.0
+    """Upper altitude bound in metres (paper: 20 m)."""
+    initial_altitude: float = 10.0
+    """Altitude at reset in metres (paper: 10 m)."""
+    num_obstacles: int = 30
+    """Occupied cells of the ground truth M, placed uniformly at random each episode (paper: 30)."""
+
+    # --- Reward (Sec. II-B) ---
+    w_cov: float = 0.4
+    """Weight of the coverage reward r_cov (paper: 0.4)."""
+    w_red: float = 0.02
+    """Weight of the redundancy penalty r_red (paper: 0.02)."""
+    w_coll: float = 0.8
+    """Weight of the proximity penalty r_coll (paper: 0.8)."""
+    stall_penalty: float = 0.5
+    """*Open.* c > 0, subtracted from the coverage gain every step to discourage stalling (cells per step)."""
+    d_safe: float = 2.0
+    """*Open.* Safety distance in metres; pairs closer than this count as a collision (3D distance)."""
+
+    # --- Dynamics (open in the paper) ---
+    cell_size: float = 1.0
+    """*Open.* Width of one grid cell in metres."""
+    dt: float = 1.0
+    """*Open.* Duration of one step in seconds."""
+    v_max: float = 1.0
+    """*Open.* Maximum horizontal speed per axis in m/s (1 cell per step at the defaults)."""
+    vz_max: float = 0.5
+    """*Open.* Maximum vertical speed in m/s."""
+    yaw_rate_max: float = math.pi / 4
+    """*Open.* Maximum heading rate in rad/s."""
+    action_frame: str = "world"
+    """*Open.* ``"world"``: the horizontal velocity command is in the arena frame and the heading is commanded
+    separately; ``"body"``: the horizontal command is rotated by the heading chi (forward, lateral)."""
+    actuation_noise_std: float = 0.05
+    """*Open.* Std of the Gaussian actuation noise, as a fraction of the maximum speed of each axis (stochastic T)."""
+    sensor_flip_prob: float = 0.02
+    """*Open.* Probability that one sensed cell is read with the wrong occupancy (the noisy P_o)."""
+
+    # --- A2A channel, Eq. (1) (Sec. II-A, Sec. IV) ---
+    link_mode: str = "channel"
+    """``"channel"``: links drawn from Eq. (1); ``"full"``: every directed link up (Full comm); ``"none"``: every link
+    down (No comm)."""
+    p_fail: float = 0.3
+    """p_f, probability of an abrupt link failure, xi ~ Bernoulli(1 - p_f) per directed link and step (paper: 0.3)."""
+    rician_k: float = 5.0
+    """K, the Rician factor of |h|^2 with E|h|^2 = 1 (paper: 5)."""
+    rician_k_altitude_slope: float = 0.0
+    """*Open, off by default.* K grows with the pair's mean altitude z: K(z) = K + slope * (z - min_altitude)."""
+    atmospheric_loss: float = 0.9
+    """L_atm in (0, 1], the atmospheric attenuation factor (paper: 0.9)."""
+    tx_power_dbm: float = 20.0
+    """P^j, transmit power in dBm (paper: 20 dBm = 100 mW)."""
+    path_loss_exponent: float = 2.0
+    """alpha, the path loss exponent (paper: 2)."""
+    sinr_threshold: float = 0.05
+    """beta_th, the SINR detection threshold, linear (paper: 0.05)."""
+    noise_power: float = 1.0
+    """sigma^2, the noise power in mW (paper: 1; the unit is our choice)."""
+    interference_max: float = 0.5
+    """I_max: the interference I ~ U(0, I_max) in mW, drawn per receiver and step (paper: 0.5)."""
+    min_link_distance: float = 0.1
+    """*Open.* Distances below this (metres) are raised to it in d^-alpha, so co-located UAVs give a finite SINR."""
+
+    extra: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
+    """Free-form metadata carried with the config (ignored by the env)."""
+
+    def __post_init__(self) -> None:
+        self._validate()
+
+    # ------------------------------------------------------------------ derived quantities
+    @property
+    def tx_power_mw(self) -> float:
+        """Transmit power P in mW."""
+        return dbm_to_mw(self.tx_power_dbm)
+
+    @property
+    def footprint_width(self) -> int:
+        """Width in cells of the square sensor footprint, 2r + 1."""
+        return 2 * self.sensor_range + 1
+
+    @property
+    def n_cells(self) -> int:
+        """Number of cells |X| of the grid."""
+        return self.grid_width * self.grid_height
+
+    @property
+    def arena_size(self) -> tuple[float, float]:
+        """Horizontal size of the arena (x, y) in metres."""
+        return self.grid_width * self.cell_size, self.grid_height * self.cell_size
+
+    def replace(self, **changes: Any) -> SwarmConfig:
+        """Return a copy with ``changes`` applied (validated again)."""
+        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
+        if unknown:
+            raise TypeError(f"Unknown SwarmConfig field(s): {sorted(unknown)}")
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        """All fields as a plain dict (for logging and saving)."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "extra"}
+
+    # ------------------------------------------------------------------ validation
+    def _validate(self) -> None:
+        def check_int(name: str, low: int) -> None:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise TypeError(f"SwarmConfig.{name} must be an int, got {type(value).__name__} ({value!r})")
+            if value < low:
+                raise ValueError(f"SwarmConfig.{name} must be >= {low}, got {value}")
+
+        def check_float(name: str, low: float, high: float = math.inf, low_open: bool = False, high_open: bool = False):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise TypeError(f"SwarmConfig.{name} must be a number, got {type(value).__name__} ({value!r})")
+            if not math.isfinite(value):
+                raise ValueError(f"SwarmConfig.{name} must be finite, got {value}")
+            bad_low = value <= low if low_open else value < low
+            bad_high = value >= high if high_open else value > high
+            if bad_low or bad_high:
+                left = "(" if low_open else "["
+                right = ")" if high_open else "]"
+                raise ValueError(f"SwarmConfig.{name} must be in {left}{low}, {high}{right}, got {value}")
+
+        check_int("n_agents", 1)
+        check_int("sensor_range", 0)
+        check_int("grid_width", 1)
+        check_int("grid_height", 1)
+        check_int("max_steps", 1)
+        check_int("num_obstacles", 0)
+        fw = 2 * self.sensor_range + 1
+        if self.grid_width < fw or self.grid_height < fw:
+            raise ValueError(
+                f"SwarmConfig grid ({self.grid_width}x{self.grid_height}) must be at least the sensor footprint "
+                f"({fw}x{fw} for sensor_range={self.sensor_range})"
+            )
+        if self.num_obstacles > self.grid_width * self.grid_height:
+            raise ValueError(
+                f"SwarmConfig.num_obstacles must be in [0, {self.grid_width * self.grid_height}] (the number of cells), "
+                f"got {self.num_obstacles}"
+            )
+        check_float("initial_energy", 0.0, low_open=True)
+        check_float("energy_decay", 0.0)
+        check_float("min_altitude", 0.0)
+        check_float("max_altitude", self.min_altitude)
+        check_float("initial_altitude", self.min_altitude, self.max_altitude)
+        for name in ("w_cov", "w_red", "w_coll"):
+            check_float(name, 0.0)
+        check_float("stall_penalty", 0.0)
+        check_float("d_safe", 0.0)
+        check_float("cell_size", 0.0, low_open=True)
+        check_float("dt", 0.0, low_open=True)
+        check_float("v_max", 0.0, low_open=True)
+        check_float("vz_max", 0.0)
+        check_float("yaw_rate_max", 0.0)
+        check_float("actuation_noise_std", 0.0)
+        check_float("sensor_flip_prob", 0.0, 0.5)
+        if self.action_frame not in ACTION_FRAMES:
+            raise ValueError(f"SwarmConfig.action_frame must be one of {ACTION_FRAMES}, got {self.action_frame!r}")
+        if self.link_mode not in LINK_MODES:
+            raise ValueError(f"SwarmConfig.link_mode must be one of {LINK_MODES}, got {self.link_mode!r}")
+        check_float("p_fail", 0.0, 1.0)
+        check_float("rician_k", 0.0)
+        check_float("rician_k_altitude_slope", 0.0)
+        check_float("atmospheric_loss", 0.0, 1.0, low_open=True)
+        check_float("tx_power_dbm", -math.inf)
+        check_float("path_loss_exponent", 0.0)
+        check_float("sinr_threshold", 0.0)
+        check_float("noise_power", 0.0)
+        check_float("interference_max", 0.0)
+        if self.noise_power + self.interference_max <= 0.0:
+            raise ValueError("SwarmConfig.noise_power + interference_max must be > 0 (the SINR denominator)")
+        check_float("min_link_distance", 0.0, low_open=True)

@@ -94,7 +94,7 @@ class SwarmConfig:
     rician_k: float = 5.0
     """K, the Rician factor of |h|^2 with E|h|^2 = 1 (paper: 5)."""
     rician_k_altitude_slope: float = 0.0
-    """*Open, off by default.* K grows with the pair's mean altitude z: K(z) = K + slope * (z - min_altitude)."""
+    """*Open, off by default.* K grows with the pair's mean altitude z: K(z) = max(0, K + slope * (z - min_altitude))."""
     atmospheric_loss: float = 0.9
     """L_atm in (0, 1], the atmospheric attenuation factor (paper: 0.9)."""
     tx_power_dbm: float = 20.0
@@ -102,7 +102,7 @@ class SwarmConfig:
     path_loss_exponent: float = 2.0
     """alpha, the path loss exponent (paper: 2)."""
     sinr_threshold: float = 0.05
-    """beta_th, the SINR detection threshold, linear (paper: 0.05)."""
+    """beta_th > 0, the SINR detection threshold, linear (paper: 0.05)."""
     noise_power: float = 1.0
     """sigma^2, the noise power in mW (paper: 1; the unit is our choice)."""
     interference_max: float = 0.5
@@ -213,7 +213,7 @@ class SwarmConfig:
         check_float("atmospheric_loss", 0.0, 1.0, low_open=True)
         check_float("tx_power_dbm", -math.inf)
         check_float("path_loss_exponent", 0.0)
-        check_float("sinr_threshold", 0.0)
+        check_float("sinr_threshold", 0.0, low_open=True)
         check_float("noise_power", 0.0)
         check_float("interference_max", 0.0)
         if self.noise_power + self.interference_max <= 0.0:

@@ -1,0 +1,298 @@
+"""Air-to-air (A2A) channel of Sec. II-A, Eq. (1): which directed links are up at one environment step.
+
+The SINR at receiver ``i`` of the transmission of sender ``j`` is
+
+    Gamma_{j->i} = P / (sigma^2 + I_i) * |h_{j->i}|^2 * d_{ij}^-alpha * L_atm * xi_{j->i}        (Eq. (1))
+
+and the directed link ``j -> i`` is active iff ``Gamma_{j->i} >= beta_th``.
+
+Units and conventions
+---------------------
+* ``P`` is the transmit power in mW, converted from ``SwarmConfig.tx_power_dbm`` (20 dBm = 100 mW).
+  ``sigma^2`` (``noise_power``) and ``I`` (``interference_max``) are in mW, so the SINR is dimensionless.
+* ``d_ij`` is the 3D Euclidean distance in metres between the positions ``(x, y, z)`` (already in metres, not cells).
+  Distances below ``SwarmConfig.min_link_distance`` are raised to it, so co-located UAVs give a finite SINR.
+* ``|h|^2`` is Rician with factor ``K`` and ``E|h|^2 = 1``: ``h = sqrt(K/(K+1)) + sqrt(1/(K+1)) * CN(0, 1)``, drawn
+  independently per directed link and step (so ``h_{j->i}`` and ``h_{i->j}`` are independent draws).
+  Equivalently ``2 (K+1) |h|^2`` is noncentral chi-square with 2 degrees of freedom and noncentrality ``2K``.
+* Optional (off by default, ``rician_k_altitude_slope = 0``): the K-factor grows with the pair's mean altitude,
+  ``K_ij = max(0, K + slope * (0.5 (z_i + z_j) - min_altitude))``.
+* ``I_i ~ U(0, I_max)`` is drawn once per receiver ``i`` and step (shared by all links into ``i``).
+* ``xi_{j->i} ~ Bernoulli(1 - p_f)`` is drawn per directed link and step.
+* A link is active iff ``xi_{j->i} = 1`` and ``Gamma_{j->i} >= beta_th``. For ``beta_th > 0`` this is exactly
+  ``Gamma >= beta_th`` (a failed link has ``Gamma = 0``); for ``beta_th = 0`` it keeps failed links down.
+
+Link-matrix convention: ``L[..., i, j] = True`` iff the message of sender ``j`` reached receiver ``i``
+(row = receiver, column = sender), i.e. ``(j, i)`` is an edge of the paper's graph ``G_t`` and ``j`` is in
+``N_t^i``. The diagonal is always ``False`` (a UAV does not "receive" its own message).
+
+``SwarmConfig.link_mode`` selects the ablations: ``"channel"`` draws links from Eq. (1), ``"full"`` sets every
+off-diagonal link up (Full comm), ``"none"`` sets every link down (No comm); the last two make no random draws.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from sb3_latentswarm.config import SwarmConfig
+
+__all__ = ["A2AChannel", "ChannelDraws", "link_probability", "sample_rician_power"]
+
+#: Gauss-Legendre nodes used by :func:`link_probability` to average over ``I ~ U(0, I_max)``.
+N_QUADRATURE = 64
+
+
+def _check_positions(positions: Any) -> np.ndarray:
+    """Return ``positions`` as a float64 array of shape (N, 3) or (B, N, 3), or raise ``ValueError``."""
+    pos = np.asarray(positions, dtype=np.float64)
+    if pos.ndim not in (2, 3) or pos.shape[-1] != 3:
+        raise ValueError(f"positions must have shape (N, 3) or (B, N, 3) in metres, got shape {pos.shape}")
+    if not np.isfinite(pos).all():
+        raise ValueError(f"positions must be finite, got non-finite values in an array of shape {pos.shape}")
+    return pos
+
+
+def _rician_k(config: SwarmConfig, mean_altitude: np.ndarray | float | None) -> np.ndarray | float:
+    """K-factor of a pair at mean altitude ``mean_altitude`` (metres); ``config.rician_k`` when the slope is 0."""
+    if config.rician_k_altitude_slope == 0.0 or mean_altitude is None:
+        return float(config.rician_k)
+    # K grows with altitude: K_ij = max(0, K + slope * (z_bar_ij - z_min))
+    k = config.rician_k + config.rician_k_altitude_slope * (np.asarray(mean_altitude, dtype=np.float64) - config.min_altitude)
+    return np.maximum(k, 0.0)
+
+
+def sample_rician_power(k_factor: float | np.ndarray, size: tuple[int, ...], rng: np.random.Generator) -> np.ndarray:
+    """Draw the Rician fading power ``|h|^2`` with factor ``K`` and ``E|h|^2 = 1``.
+
+    ``h = sqrt(K/(K+1)) + sqrt(1/(K+1)) * CN(0, 1)`` with ``CN(0, 1) = (x + i y) / sqrt(2)``, ``x, y ~ N(0, 1)``.
+    Consumes exactly one ``rng.standard_normal(size + (2,))`` call (the channel relies on this draw order).
+
+    :param k_factor: Rician factor ``K >= 0`` (dimensionless), a scalar or an array broadcastable to ``size``.
+    :param size: shape of the output.
+    :param rng: numpy random generator.
+    :return: array of shape ``size`` with the (dimensionless) fading powers ``|h|^2``.
+    """
+    k = np.asarray(k_factor, dtype=np.float64)
+    if np.any(k < 0) or not np.all(np.isfinite(k)):
+        raise ValueError(f"k_factor must be finite and >= 0, got {k_factor!r}")
+    z = rng.standard_normal(tuple(size) + (2,))
+    # Rician power: 2 (K+1) |h|^2 = (x + sqrt(2K))^2 + y^2 ~ ncx2(df=2, nc=2K)
+    return ((z[..., 0] + np.sqrt(2.0 * k)) ** 2 + z[..., 1] ** 2) / (2.0 * (k + 1.0))
+
+
+@dataclass(frozen=True)
+class ChannelDraws:
+    """The random quantities of Eq. (1) for one step (or a batch of steps) of ``N`` UAVs.
+
+    :param h_power: Rician fading powers ``|h_{j->i}|^2``, shape (..., N, N), row = receiver ``i``.
+    :param interference: interference ``I_i`` in mW per receiver, shape (..., N).
+    :param xi: link-failure indicators ``xi_{j->i}`` (``True`` = no abrupt failure), shape (..., N, N), bool.
+    """
+
+    h_power: np.ndarray
+    interference: np.ndarray
+    xi: np.ndarray
+
+
+class A2AChannel:
+    """Samples the directed link matrix of Eq. (1) for the positions of the swarm.
+
+    The link matrix ``L[..., i, j]`` is ``True`` iff receiver ``i`` got the message of sender ``j``
+    (row = receiver); its diagonal is always ``False``. See the module docstring for units.
+
+    :param config: the swarm configuration (channel constants, ``link_mode``).
+    """
+
+    def __init__(self, config: SwarmConfig) -> None:
+        self.config = config
+        self.link_mode = config.link_mode
+        self.p_fail = float(config.p_fail)
+        self.beta_th = float(config.sinr_threshold)
+        self.noise_power = float(config.noise_power)
+        self.interference_max = float(config.interference_max)
+        self.tx_power_mw = float(config.tx_power_mw)
+        self.path_loss_exponent = float(config.path_loss_exponent)
+        self.atmospheric_loss = float(config.atmospheric_loss)
+        self.k_factor = float(config.rician_k)
+        self.k_slope = float(config.rician_k_altitude_slope)
+        self._min_d2 = float(config.min_link_distance) ** 2
+        self._half_alpha = 0.5 * self.path_loss_exponent
+        # Eq. (1) rearranged (no division at sample time): link iff xi and
+        #   (x + sqrt(2K))^2 + y^2 >= 2 (K+1) * beta_th (sigma2 + I) / (P L_atm) * d^alpha
+        gain = self.tx_power_mw * self.atmospheric_loss  # P * L_atm in mW
+        self._c_noise = self.beta_th * self.noise_power / gain
+        self._c_interf = self.beta_th * self.interference_max / gain
+        self._m = math.sqrt(2.0 * self.k_factor)  # sqrt of the noncentrality 2K
+        self._scale = 2.0 * (self.k_factor + 1.0)  # 2 (K+1)
+        self._offdiag: dict[int, np.ndarray] = {}
+        self._offdiag_mask(config.n_agents)
+
+    def _offdiag_mask(self, n: int) -> np.ndarray:
+        """Cached boolean (n, n) mask, ``True`` off the diagonal."""
+        mask = self._offdiag.get(n)
+        if mask is None:
+            mask = ~np.eye(n, dtype=bool)
+            mask.setflags(write=False)
+            self._offdiag[n] = mask
+        return mask
+
+    # ------------------------------------------------------------------ hot path
+    def sample(self, positions: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Draw the directed link matrix for one step.
+
+        Draw order (shared with :meth:`draw`): ``rng.standard_normal(batch + (N, N, 2))`` for the fading, then
+        ``rng.random(batch + (N, N + 1))`` whose first ``N`` columns give ``xi`` and last column gives ``I``.
+        No draws are made when ``link_mode`` is ``"full"`` or ``"none"``.
+
+        :param positions: UAV positions in metres, shape (N, 3) or a batch (B, N, 3).
+        :param rng: numpy random generator.
+        :return: boolean link matrix of shape (N, N) or (B, N, N); ``L[..., i, j]`` = receiver ``i`` got sender ``j``.
+        """
+        pos = _check_positions(positions)
+        n = pos.shape[-2]
+        mask = self._offdiag_mask(n)
+        if self.link_mode != "channel":
+            if self.link_mode == "full":
+                return np.broadcast_to(mask, pos.shape[:-1] + (n,)).copy()
+            return np.zeros(pos.shape[:-1] + (n,), dtype=bool)
+        diff = pos[..., :, None, :] - pos[..., None, :, :]
+        d2 = np.maximum((diff * diff).sum(axis=-1), self._min_d2)  # squared 3D distance, clamped at d_min^2
+        d_alpha = d2 if self._half_alpha == 1.0 else d2**self._half_alpha  # path loss d^alpha
+        z = rng.standard_normal(d2.shape + (2,))
+        u = rng.random(pos.shape[:-1] + (n + 1,))
+        # Eq. (1): Gamma >= beta_th  <=>  2(K+1)|h|^2 >= 2(K+1) beta_th (sigma2 + I_i) d^alpha / (P L_atm)
+        rhs = (self._c_noise + self._c_interf * u[..., n : n + 1]) * d_alpha  # I_i = I_max * u, one per receiver row
+        if self.k_slope == 0.0:
+            lhs = (z[..., 0] + self._m) ** 2 + z[..., 1] ** 2  # 2(K+1)|h|^2 ~ ncx2(2, 2K)
+            rhs *= self._scale
+        else:
+            alt = pos[..., 2]
+            k = _rician_k(self.config, 0.5 * (alt[..., :, None] + alt[..., None, :]))  # K_ij at mean pair altitude
+            lhs = (z[..., 0] + np.sqrt(2.0 * k)) ** 2 + z[..., 1] ** 2
+            rhs *= 2.0 * (k + 1.0)
+        # xi ~ Bernoulli(1 - p_f): the link survives iff u >= p_f
+        return (lhs >= rhs) & (u[..., :n] >= self.p_fail) & mask
+
+    # ------------------------------------------------------------------ helpers (tests, diagnostics)
+    def draw(self, positions: np.ndarray, rng: np.random.Generator) -> ChannelDraws:
+        """Draw ``|h|^2``, ``I`` and ``xi`` with the same rng consumption as :meth:`sample` in ``"channel"`` mode.
+
+        :param positions: UAV positions in metres, shape (N, 3) or (B, N, 3) (the altitude sets K if the slope is on).
+        :param rng: numpy random generator.
+        :return: the draws, see :class:`ChannelDraws`.
+        """
+        pos = _check_positions(positions)
+        n = pos.shape[-2]
+        alt = pos[..., 2]
+        k = _rician_k(self.config, 0.5 * (alt[..., :, None] + alt[..., None, :]))
+        h_power = sample_rician_power(k, pos.shape[:-1] + (n,), rng)
+        u = rng.random(pos.shape[:-1] + (n + 1,))
+        interference = self.interference_max * u[..., n]  # I_i ~ U(0, I_max), per receiver
+        xi = u[..., :n] >= self.p_fail  # xi ~ Bernoulli(1 - p_f), per directed link
+        return ChannelDraws(h_power=h_power, interference=interference, xi=xi)
+
+    def sinr_from_draws(self, positions: np.ndarray, draws: ChannelDraws) -> np.ndarray:
+        """Evaluate Eq. (1) for given draws. Independent of ``link_mode`` (it is the channel's physics).
+
+        :param positions: UAV positions in metres, shape (N, 3) or (B, N, 3).
+        :param draws: ``|h|^2``, ``I`` (mW) and ``xi`` as returned by :meth:`draw`.
+        :return: SINR matrix (dimensionless, linear), shape (N, N) or (B, N, N), ``[..., i, j]`` = ``Gamma_{j->i}``;
+            the diagonal is 0.
+        """
+        pos = _check_positions(positions)
+        n = pos.shape[-2]
+        diff = pos[..., :, None, :] - pos[..., None, :, :]
+        d = np.sqrt(np.maximum((diff * diff).sum(axis=-1), self._min_d2))  # 3D distance in metres, >= d_min
+        interference = np.asarray(draws.interference, dtype=np.float64)[..., :, None]
+        # Eq. (1): SINR = P / (sigma2 + I) * |h|^2 * d^-alpha * L_atm * xi
+        gamma = (
+            self.tx_power_mw
+            / (self.noise_power + interference)
+            * draws.h_power
+            * d ** (-self.path_loss_exponent)
+            * self.atmospheric_loss
+            * draws.xi
+        )
+        return np.where(self._offdiag_mask(n), gamma, 0.0)
+
+    def sinr(self, positions: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Draw the channel and return the SINR matrix of Eq. (1) (diagonal 0).
+
+        With the same rng state, ``sample`` in ``"channel"`` mode returns ``(sinr >= beta_th) & xi`` off the diagonal.
+
+        :param positions: UAV positions in metres, shape (N, 3) or (B, N, 3).
+        :param rng: numpy random generator.
+        :return: SINR matrix, shape (N, N) or (B, N, N), ``[..., i, j]`` = ``Gamma_{j->i}``.
+        """
+        return self.sinr_from_draws(positions, self.draw(positions, rng))
+
+
+def link_probability(
+    distance: float | np.ndarray, config: SwarmConfig, altitude: float | np.ndarray | None = None
+) -> np.ndarray:
+    """Closed-form probability that a directed link at 3D distance ``distance`` is active at one step.
+
+    ``P = (1 - p_f) * E_I[ P(|h|^2 >= beta_th (sigma^2 + I) d^alpha / (P L_atm)) ]`` with
+    ``P(|h|^2 >= x) = ncx2.sf(2 (K+1) x, df=2, nc=2K)`` (``exp(-x)`` for ``K = 0``) and ``I ~ U(0, I_max)``
+    averaged by Gauss-Legendre quadrature with :data:`N_QUADRATURE` nodes (no averaging if ``I_max = 0``).
+    Distances below ``min_link_distance`` are raised to it, as in :class:`A2AChannel`.
+    ``link_mode="full"`` gives 1 and ``"none"`` gives 0.
+
+    :param distance: 3D distance(s) in metres, scalar or array, ``>= 0`` (``inf`` gives probability 0).
+    :param config: the swarm configuration.
+    :param altitude: mean altitude of the pair in metres (broadcast with ``distance``); required only when
+        ``config.rician_k_altitude_slope != 0``, ignored otherwise.
+    :return: probabilities in [0, 1], array of the broadcast shape of ``distance`` and ``altitude`` (0-d for scalars).
+    """
+    d = np.asarray(distance, dtype=np.float64)
+    if np.isnan(d).any() or (d < 0).any():
+        raise ValueError(f"distance must be >= 0 metres (not NaN), got {distance!r}")
+    if config.rician_k_altitude_slope != 0.0:
+        if altitude is None:
+            raise ValueError("altitude (mean pair altitude in metres) is required when rician_k_altitude_slope != 0")
+        alt = np.asarray(altitude, dtype=np.float64)
+        if not np.isfinite(alt).all():
+            raise ValueError(f"altitude must be finite, got {altitude!r}")
+        d, alt = np.broadcast_arrays(d, alt)
+        k = np.asarray(_rician_k(config, alt))
+    else:
+        k = np.full(d.shape, float(config.rician_k))
+    if config.link_mode == "full":
+        return np.ones(d.shape)
+    if config.link_mode == "none":
+        return np.zeros(d.shape)
+
+    from scipy import stats  # lazy: scipy is not needed on the hot path
+
+    d = np.maximum(d, config.min_link_distance)
+    with np.errstate(over="ignore"):
+        d_alpha = d**config.path_loss_exponent
+    if config.interference_max > 0.0:
+        nodes, weights = np.polynomial.legendre.leggauss(N_QUADRATURE)
+        interference = 0.5 * config.interference_max * (nodes + 1.0)  # nodes mapped from [-1, 1] to [0, I_max]
+        weights = 0.5 * weights  # mean over U(0, I_max) = (1/I_max) * integral, weights sum to 1
+    else:
+        interference = np.zeros(1)
+        weights = np.ones(1)
+    # Eq. (1) solved for |h|^2: Gamma >= beta_th  <=>  |h|^2 >= x = beta_th (sigma2 + I) d^alpha / (P L_atm)
+    x = (
+        config.sinr_threshold
+        * (config.noise_power + interference)
+        / (config.tx_power_mw * config.atmospheric_loss)
+        * d_alpha[..., None]
+    )
+    kq = k[..., None]
+    with np.errstate(invalid="ignore", over="ignore"):
+        # Rician tail: P(|h|^2 >= x) = ncx2.sf(2(K+1)x, 2, 2K); Rayleigh (K = 0): exp(-x)
+        tail = np.where(
+            kq > 0.0,
+            stats.ncx2.sf(2.0 * (kq + 1.0) * x, 2, 2.0 * np.maximum(kq, 1e-300)),
+            np.exp(-x),
+        )
+    tail = np.where(np.isinf(x), 0.0, tail)
+    # xi ~ Bernoulli(1 - p_f) is independent of the fading and interference
+    return np.clip((1.0 - config.p_fail) * (tail @ weights), 0.0, 1.0)

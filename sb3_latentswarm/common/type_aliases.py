@@ -1,0 +1,44 @@
+"""NamedTuples of the latent-swarm algorithm (the counterpart of sb3-contrib's ``RNNStates``)."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch as th
+
+
+class LatentState(NamedTuple):
+    """Recurrent state each UAV carries from step t-1 into step t (Sec. III-A).
+
+    Every field has a leading dimension of vec-env slots (env-major, agent-minor). The last two fields are what the
+    memory update G needs from the previous step; they are part of the state, not of the observation.
+    """
+
+    map_state: th.Tensor
+    """mu_{t-1}, (n_slots, d_mu)."""
+    task_state: th.Tensor
+    """tau_{t-1}, (n_slots, d_tau)."""
+    memory_state: th.Tensor
+    """rho_{t-1}, (n_slots, d_rho)."""
+    prev_local_obs: th.Tensor
+    """o_{t-1}, (n_slots, local_obs_dim)."""
+    prev_message: th.Tensor
+    """mbar_{t-1}, the best available aggregated message of the previous step, (n_slots, d_mu + d_tau)."""
+
+
+class SwarmRolloutBufferSamples(NamedTuple):
+    """One minibatch of whole swarms over a contiguous time chunk.
+
+    Time-major: ``(chunk_length, n_sequences * n_agents, ...)`` where each sequence is one swarm (all its agents,
+    env-major agent-minor inside the swarm) over one chunk of the rollout.
+    """
+
+    observations: dict[str, th.Tensor]
+    actions: th.Tensor
+    old_values: th.Tensor
+    old_log_prob: th.Tensor
+    advantages: th.Tensor
+    returns: th.Tensor
+    episode_starts: th.Tensor
+    latent_state: LatentState
+    """The stored state at the first step of each chunk, ``(n_sequences * n_agents, ...)``."""

@@ -1,0 +1,461 @@
+"""``LatentSwarmPPO``: MAPPO-style training of the latent-swarm policy with the joint loss of Sec. III-E.
+
+A subclass of sb3-contrib's ``RecurrentPPO``. What it changes and why (see ``docs/algorithm.md``):
+
+* the recurrent state is a :class:`~sb3_latentswarm.common.LatentState` (map, task, memory, previous observation and
+  message), not LSTM (h, c) pairs;
+* :class:`~sb3_latentswarm.common.SwarmRolloutBuffer` keeps each swarm together and time-aligned in a minibatch,
+  replaying contiguous chunks from the stored latent state, because every agent's update reads its peers' states;
+* ``train`` minimizes L = -L_CLIP + c1 L_VF + c2 L_map + c3 L_pred - ent_coef * entropy in one gradient step per
+  minibatch on all parameters.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from sb3_contrib import RecurrentPPO
+from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.utils import FloatSchedule, explained_variance, obs_as_tensor, safe_mean
+from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
+
+from sb3_latentswarm.common.buffers import SwarmRolloutBuffer
+from sb3_latentswarm.common.schedules import paper_learning_rate
+from sb3_latentswarm.common.type_aliases import LatentState
+from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy, check_observation_space
+
+SelfLatentSwarmPPO = TypeVar("SelfLatentSwarmPPO", bound="LatentSwarmPPO")
+
+N_AGENT_KEYS = ("link_row", "swarm_proprio")
+"""Observation keys whose shape depends on the number of agents; the policy's parameters do not."""
+
+
+class LatentSwarmPPO(RecurrentPPO):
+    """Latent semantic state estimation for UAV swarms (Karakasis and Saad), trained as MAPPO with auxiliary losses.
+
+    Defaults are the paper's (Sec. IV) where it gives them: ``n_steps=600``, ``gamma=0.99``, ``gae_lambda=0.95``,
+    ``clip_range=0.2``, ``ent_coef=0.01``, ``vf_coef=0.5`` (c1), ``map_coef=5`` (c2), ``pred_coef=5`` (c3), and a
+    learning rate of 1e-4 for the first 1000 of 1600 updates and 1e-5 after (:func:`paper_learning_rate`).
+
+    :param policy: ``"LatentSwarmPolicy"`` or the policy class
+    :param env: a swarm VecEnv from :func:`sb3_latentswarm.make_vec_env` (it must expose ``n_agents``)
+    :param learning_rate: learning rate or schedule of ``progress_remaining``
+    :param n_steps: steps per vec-env slot per rollout (paper: 600)
+    :param batch_size: agent-steps per minibatch, rounded down to whole (swarm, chunk) sequences of
+        ``n_agents * chunk_length`` agent-steps
+    :param n_epochs: passes over the rollout per update (the paper does not say; MAPPO uses 5 to 15)
+    :param gamma: discount factor gamma
+    :param gae_lambda: GAE lambda
+    :param clip_range: PPO clipping epsilon
+    :param clip_range_vf: optional value clipping (``None``: off)
+    :param normalize_advantage: normalize advantages per minibatch
+    :param ent_coef: entropy coefficient
+    :param vf_coef: c1, weight of the value loss L_VF
+    :param map_coef: c2, weight of the map-reconstruction loss L_map
+    :param pred_coef: c3, weight of the message-prediction loss L_pred
+    :param chunk_length: steps per training sequence (MAPPO's data chunk); must divide ``n_steps``
+    :param max_grad_norm: gradient clipping norm
+    :param target_kl: optional KL early stopping
+    :param stats_window_size: episodes averaged in the rollout logs
+    :param tensorboard_log: TensorBoard log folder
+    :param policy_kwargs: keyword arguments of :class:`LatentSwarmPolicy` (e.g. ``latent_dim``)
+    :param verbose: 0, 1 or 2
+    :param seed: seed of torch, numpy and the env copies
+    :param device: ``"auto"``, ``"cpu"`` or ``"cuda"``
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"LatentSwarmPolicy": LatentSwarmPolicy}
+    policy: LatentSwarmPolicy
+    rollout_buffer: SwarmRolloutBuffer
+
+    def __init__(
+        self,
+        policy: str | type[LatentSwarmPolicy],
+        env: GymEnv | str,
+        learning_rate: float | Schedule = paper_learning_rate(),
+        n_steps: int = 600,
+        batch_size: int = 4500,
+        n_epochs: int = 5,
+        gamma: float = 0.99,
+        gae_lambda: float = 0.95,
+        clip_range: float | Schedule = 0.2,
+        clip_range_vf: float | Schedule | None = None,
+        normalize_advantage: bool = True,
+        ent_coef: float = 0.01,
+        vf_coef: float = 0.5,
+        map_coef: float = 5.0,
+        pred_coef: float = 5.0,
+        chunk_length: int = 25,
+        max_grad_norm: float = 0.5,
+        target_kl: float | None = None,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ):
+        for name, value in (("map_coef", map_coef), ("pred_coef", pred_coef), ("vf_coef", vf_coef)):
+            if value < 0:
+                raise ValueError(f"{name} must be >= 0, got {value}")
+        if chunk_length < 1:
+            raise ValueError(f"chunk_length must be >= 1, got {chunk_length}")
+        if n_steps % chunk_length != 0:
+            raise ValueError(f"chunk_length must divide n_steps: n_steps={n_steps}, chunk_length={chunk_length}")
+        super().__init__(
+            policy,
+            env,
+            learning_rate=learning_rate,
+            n_steps=n_steps,
+            batch_size=batch_size,
+            n_epochs=n_epochs,
+            gamma=gamma,
+            gae_lambda=gae_lambda,
+            clip_range=clip_range,
+            clip_range_vf=clip_range_vf,
+            normalize_advantage=normalize_advantage,
+            ent_coef=ent_coef,
+            vf_coef=vf_coef,
+            max_grad_norm=max_grad_norm,
+            target_kl=target_kl,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=False,
+        )
+        self.map_coef = map_coef
+        self.pred_coef = pred_coef
+        self.chunk_length = chunk_length
+        self.n_agents: int | None = None
+        if self.env is not None:
+            self.n_agents = self._check_swarm_env(self.env)
+            sequence = self.n_agents * chunk_length
+            if batch_size is None or batch_size < sequence:
+                raise ValueError(
+                    f"batch_size must hold at least one whole swarm sequence (n_agents * chunk_length = {sequence} "
+                    f"agent-steps), got batch_size={batch_size}"
+                )
+        if _init_setup_model:
+            self._setup_model()
+
+    # ------------------------------------------------------------------ environment checks
+    @staticmethod
+    def _check_swarm_env(env: VecEnv) -> int:
+        """Validate a swarm VecEnv and return its number of agents per swarm."""
+        check_observation_space(env.observation_space)
+        try:
+            n_agents = int(env.get_attr("n_agents", indices=0)[0]) if not hasattr(env, "n_agents") else int(env.n_agents)
+        except (AttributeError, IndexError) as error:
+            raise ValueError(
+                "LatentSwarmPPO needs a swarm VecEnv exposing `n_agents` (slots are env-major, agent-minor); "
+                "build it with sb3_latentswarm.make_vec_env"
+            ) from error
+        if env.num_envs % n_agents != 0:
+            raise ValueError(f"The VecEnv has {env.num_envs} slots, not a multiple of n_agents={n_agents}")
+        link_dim = env.observation_space["link_row"].shape[-1]
+        if link_dim != n_agents:
+            raise ValueError(f"observation 'link_row' has length {link_dim} but the env reports n_agents={n_agents}")
+        return n_agents
+
+    # ------------------------------------------------------------------ setup
+    def _setup_model(self) -> None:
+        self._setup_lr_schedule()
+        self.set_random_seed(self.seed)
+        if self.env is not None:
+            self.n_agents = self._check_swarm_env(self.env)
+            self.observation_space = self.env.observation_space
+        self.policy = self.policy_class(  # type: ignore[assignment]
+            self.observation_space, self.action_space, self.lr_schedule, **self.policy_kwargs
+        )
+        self.policy = self.policy.to(self.device)
+        if not isinstance(self.policy, LatentSwarmPolicy):
+            raise ValueError("LatentSwarmPPO needs a LatentSwarmPolicy")
+        self._setup_rollout_state()
+        self.clip_range = FloatSchedule(self.clip_range)
+        if self.clip_range_vf is not None:
+            if isinstance(self.clip_range_vf, (float, int)) and self.clip_range_vf <= 0:
+                raise ValueError(f"clip_range_vf must be positive (None deactivates it), got {self.clip_range_vf}")
+            self.clip_range_vf = FloatSchedule(self.clip_range_vf)
+
+    def _setup_rollout_state(self) -> None:
+        """(Re)build the buffer, the carried latent state and the swarm statistics for the current env size."""
+        self._last_latent_state = self.policy.initial_state(self.n_envs)
+        self._swarm_summaries: deque[dict[str, Any]] = deque(maxlen=self._stats_window_size)
+        if self.n_agents is None:  # loaded without an env: enough for predict
+            return
+        self.rollout_buffer = SwarmRolloutBuffer(
+            self.n_steps,
+            self.observation_space,  # type: ignore[arg-type]
+            self.action_space,
+            latent_dims=self.policy.latent_dims,
+            n_agents=self.n_agents,
+            chunk_length=self.chunk_length,
+            device=self.device,
+            gamma=self.gamma,
+            gae_lambda=self.gae_lambda,
+            n_envs=self.n_envs,
+        )
+
+    def set_env(self, env: GymEnv, force_reset: bool = True) -> None:
+        """Set a new swarm VecEnv. Unlike SB3, the number of agents and of env copies may differ from training's."""
+        env = self._wrap_env(env, self.verbose)
+        n_agents = self._check_swarm_env(env)
+        for key, space in self.observation_space.spaces.items():  # type: ignore[attr-defined]
+            if key in N_AGENT_KEYS:
+                continue
+            if key not in env.observation_space.spaces or env.observation_space[key].shape != space.shape:
+                raise ValueError(
+                    f"Observation '{key}' of the new env differs from training's ({space}); only the number of agents "
+                    f"may change"
+                )
+        if env.action_space != self.action_space:
+            raise ValueError(f"Action space mismatch: {env.action_space} != {self.action_space}")
+        self._vec_normalize_env = unwrap_vec_normalize(env)
+        if force_reset:
+            self._last_obs = None  # type: ignore[assignment]
+        self.n_agents = n_agents
+        self.n_envs = env.num_envs
+        self.env = env
+        self.observation_space = env.observation_space
+        self.policy.observation_space = env.observation_space
+        self._setup_rollout_state()
+
+    @classmethod
+    def load(  # type: ignore[override]
+        cls,
+        path,
+        env: GymEnv | None = None,
+        device: th.device | str = "auto",
+        custom_objects: dict[str, Any] | None = None,
+        print_system_info: bool = False,
+        force_reset: bool = True,
+        **kwargs,
+    ) -> LatentSwarmPPO:
+        """Load a model; ``env`` may have another number of agents or env copies than the training env."""
+        model = super().load(
+            path, env=None, device=device, custom_objects=custom_objects, print_system_info=print_system_info, **kwargs
+        )
+        if env is not None:
+            model.set_env(env, force_reset=force_reset)
+        return model
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_last_latent_state", "_swarm_summaries"]
+
+    # ------------------------------------------------------------------ rollouts
+    def collect_rollouts(  # type: ignore[override]
+        self,
+        env: VecEnv,
+        callback: BaseCallback,
+        rollout_buffer: RolloutBuffer,
+        n_rollout_steps: int,
+    ) -> bool:
+        """Collect ``n_rollout_steps`` per slot with the current policy, carrying the latent state across calls."""
+        assert isinstance(rollout_buffer, SwarmRolloutBuffer), "LatentSwarmPPO needs a SwarmRolloutBuffer"
+        assert self._last_obs is not None, "No previous observation was provided"
+        assert self.n_agents is not None
+        self.policy.set_training_mode(False)
+        n_steps = 0
+        rollout_buffer.reset()
+        callback.on_rollout_start()
+        latent_state = self._last_latent_state
+        link_up_sum, in_link_count, dropout_sum = 0.0, 0.0, 0.0
+
+        while n_steps < n_rollout_steps:
+            with th.no_grad():
+                obs_tensor = obs_as_tensor(self._last_obs, self.device)
+                episode_starts = th.as_tensor(self._last_episode_starts, dtype=th.float32, device=self.device)
+                actions, values, log_probs, new_latent_state = self.policy(obs_tensor, latent_state, episode_starts)
+            actions = actions.cpu().numpy()
+            clipped_actions = np.clip(actions, self.action_space.low, self.action_space.high)  # type: ignore[attr-defined]
+
+            # link statistics of the observation the agents just acted on (vectorized over slots)
+            link_row = self._last_obs["link_row"]  # type: ignore[index]
+            link_up_sum += float(link_row.sum())
+            in_link_count += link_row.shape[0] * (self.n_agents - 1)
+            dropout_sum += float((link_row.sum(axis=-1) == 0).mean())
+
+            new_obs, rewards, dones, infos = env.step(clipped_actions)
+            self.num_timesteps += env.num_envs
+            callback.update_locals(locals())
+            if not callback.on_step():
+                return False
+            self._update_info_buffer(infos, dones)
+            self._update_swarm_summaries(infos, dones)
+            n_steps += 1
+            # The env terminates every episode (energy, horizon T or full coverage are all terminal in the paper's
+            # finite-horizon task) and SuperSuit never sets TimeLimit.truncated, so no timeout bootstrap is needed.
+            rollout_buffer.add(
+                self._last_obs,  # type: ignore[arg-type]
+                actions,
+                rewards,
+                self._last_episode_starts,  # type: ignore[arg-type]
+                values,
+                log_probs,
+                latent_state=latent_state,
+            )
+            self._last_obs = new_obs  # type: ignore[assignment]
+            self._last_episode_starts = dones
+            latent_state = new_latent_state
+
+        self._last_latent_state = latent_state
+        with th.no_grad():
+            values = self.policy.predict_values(obs_as_tensor(new_obs, self.device))  # type: ignore[arg-type]
+        rollout_buffer.compute_returns_and_advantage(last_values=values, dones=dones)
+
+        self.logger.record("rollout/link_up_rate", link_up_sum / in_link_count if in_link_count else float("nan"))
+        self.logger.record("rollout/dropout_rate", dropout_sum / n_steps)
+        if self._swarm_summaries:
+            self.logger.record("rollout/coverage", safe_mean([s["coverage"] for s in self._swarm_summaries]))
+            self.logger.record("rollout/collisions", safe_mean([s["collisions"] for s in self._swarm_summaries]))
+        callback.update_locals(locals())
+        callback.on_rollout_end()
+        return True
+
+    def _update_swarm_summaries(self, infos: list[dict[str, Any]], dones: np.ndarray) -> None:
+        """Keep the end-of-episode summary of each finished swarm (read from its first agent's slot)."""
+        assert self.n_agents is not None
+        first_slots = np.flatnonzero(dones[:: self.n_agents]) * self.n_agents
+        for slot in first_slots:
+            summary = infos[slot].get("swarm_summary")
+            if summary is not None:
+                self._swarm_summaries.append(summary)
+
+    # ------------------------------------------------------------------ training
+    def train(self) -> None:
+        """One update on the rollout: the joint loss of Sec. III-E, one gradient step per minibatch."""
+        self.policy.set_training_mode(True)
+        self._update_learning_rate(self.policy.optimizer)
+        clip_range = self.clip_range(self._current_progress_remaining)  # type: ignore[operator]
+        clip_range_vf = None if self.clip_range_vf is None else self.clip_range_vf(self._current_progress_remaining)  # type: ignore[operator]
+
+        pg_losses, value_losses, entropy_losses, map_losses, pred_losses = [], [], [], [], []
+        clip_fractions, approx_kl_divs = [], []
+        continue_training = True
+        loss = th.zeros(())
+
+        for epoch in range(self.n_epochs):
+            approx_kl_divs = []
+            for rollout_data in self.rollout_buffer.get(self.batch_size):
+                evaluation = self.policy.evaluate_sequences(
+                    rollout_data.observations,
+                    rollout_data.actions,
+                    rollout_data.latent_state,
+                    rollout_data.episode_starts,
+                )
+                advantages = rollout_data.advantages
+                if self.normalize_advantage and advantages.numel() > 1:
+                    advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+
+                # L_CLIP: clipped surrogate objective
+                ratio = th.exp(evaluation.log_prob - rollout_data.old_log_prob)
+                policy_loss_1 = advantages * ratio
+                policy_loss_2 = advantages * th.clamp(ratio, 1 - clip_range, 1 + clip_range)
+                policy_loss = -th.min(policy_loss_1, policy_loss_2).mean()
+
+                # L_VF = mean (R_t - V(s_t))^2, optionally clipped around the old value
+                values = evaluation.values
+                if clip_range_vf is not None:
+                    values = rollout_data.old_values + th.clamp(values - rollout_data.old_values, -clip_range_vf, clip_range_vf)
+                value_loss = ((rollout_data.returns - values) ** 2).mean()
+
+                entropy_loss = -evaluation.entropy.mean()
+
+                # Eq. (3), L_map = mean over agent-steps of ||D(mu_t^i) - M_hat_t||^2, per cell (see docs)
+                map_target = rollout_data.observations["global_map"].float().flatten(2)
+                map_loss = ((evaluation.map_reconstruction - map_target) ** 2).mean()
+
+                # Eq. (4), L_pred = mean over communication steps of ||m_t^i - mhat_t^i||^2, per element; m is a target
+                pred_error = ((evaluation.predicted_message - evaluation.received_message.detach()) ** 2).mean(-1)
+                comm = evaluation.has_message.float()
+                pred_loss = (pred_error * comm).sum() / comm.sum().clamp(min=1.0)
+
+                # Eq. (2): L = -L_CLIP + c1 L_VF + c2 L_map + c3 L_pred (and SB3's entropy bonus)
+                loss = (
+                    policy_loss
+                    + self.vf_coef * value_loss
+                    + self.map_coef * map_loss
+                    + self.pred_coef * pred_loss
+                    + self.ent_coef * entropy_loss
+                )
+
+                with th.no_grad():
+                    log_ratio = evaluation.log_prob - rollout_data.old_log_prob
+                    approx_kl_div = th.mean((th.exp(log_ratio) - 1) - log_ratio).cpu().numpy()
+                approx_kl_divs.append(approx_kl_div)
+                pg_losses.append(policy_loss.item())
+                value_losses.append(value_loss.item())
+                entropy_losses.append(entropy_loss.item())
+                map_losses.append(map_loss.item())
+                pred_losses.append(pred_loss.item())
+                clip_fractions.append(th.mean((th.abs(ratio - 1) > clip_range).float()).item())
+
+                if self.target_kl is not None and approx_kl_div > 1.5 * self.target_kl:
+                    continue_training = False
+                    if self.verbose >= 1:
+                        print(f"Early stopping at step {epoch} due to reaching max kl: {approx_kl_div:.2f}")
+                    break
+
+                self.policy.optimizer.zero_grad()
+                loss.backward()
+                th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
+                self.policy.optimizer.step()
+
+            self._n_updates += 1
+            if not continue_training:
+                break
+
+        explained_var = explained_variance(self.rollout_buffer.values.flatten(), self.rollout_buffer.returns.flatten())
+        self.logger.record("train/entropy_loss", np.mean(entropy_losses))
+        self.logger.record("train/policy_gradient_loss", np.mean(pg_losses))
+        self.logger.record("train/value_loss", np.mean(value_losses))
+        self.logger.record("train/map_loss", np.mean(map_losses))
+        self.logger.record("train/pred_loss", np.mean(pred_losses))
+        self.logger.record("train/approx_kl", np.mean(approx_kl_divs))
+        self.logger.record("train/clip_fraction", np.mean(clip_fractions))
+        self.logger.record("train/loss", loss.item())
+        self.logger.record("train/explained_variance", explained_var)
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/clip_range", clip_range)
+        if clip_range_vf is not None:
+            self.logger.record("train/clip_range_vf", clip_range_vf)
+
+    def learn(  # type: ignore[override]
+        self: SelfLatentSwarmPPO,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 1,
+        tb_log_name: str = "LatentSwarmPPO",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfLatentSwarmPPO:
+        if self.env is None:
+            raise ValueError("LatentSwarmPPO.learn needs an env: pass one to the constructor, load(..., env=...) or set_env")
+        return super().learn(
+            total_timesteps=total_timesteps,
+            callback=callback,
+            log_interval=log_interval,
+            tb_log_name=tb_log_name,
+            reset_num_timesteps=reset_num_timesteps,
+            progress_bar=progress_bar,
+        )
+
+    @property
+    def last_latent_state(self) -> LatentState:
+        """The latent state carried between rollouts (one row per vec-env slot)."""
+        return self._last_latent_state
+
+    @staticmethod
+    def _is_box(space: spaces.Space) -> bool:
+        return isinstance(space, spaces.Box)

@@ -1,0 +1,433 @@
+"""``LatentSwarmPolicy``: the map / task / memory latent state of Sec. III, as an SB3 policy.
+
+Per UAV i at step t, in the paper's order (all agents of all swarms at once, grouped by swarm with reshapes):
+
+* message of UAV j: z_{t-1}^j = [mu_{t-1}^j ; tau_{t-1}^j]; aggregate over live in-links (Sec. III-B):
+  m_t^i = mean_{j in N_t^i} z_{t-1}^j, split into m^mu and m^tau
+* memory (Sec. III-A): rho_t = G_psi(rho_{t-1}, tau_{t-1}, o_{t-1}, mbar_{t-1})
+* predictor (Sec. III-C): mhat_t = P_zeta(rho_t, o_t, e_t); best available message mbar_t = m_t if N_t^i is not
+  empty, else mhat_t
+* map (Sec. III-A): mu_t = E_phi(mu_{t-1}, o_t, p_t, m_t^mu) with m_t^mu = 0 when nothing arrived (the asymmetric
+  update: the map state never sees a predicted message); decoder D_eta(mu_t) reconstructs M_hat_t
+* task (Sec. III-A): tau_t = F_theta(tau_{t-1}, o_t, e_t, mu_{t-1}, mbar_t)
+* actor (Sec. III-D): Gaussian pi_xi(a | tau_t) with mean and diagonal std from tau_t
+* critic (Sec. III-D): V_omega(s_t), s_t = ({e_t^j}, M_hat_t) read from the global part of the observation
+
+The actor side reads only ``local_obs``, ``proprio`` and ``link_row``; the critic only ``swarm_proprio`` and
+``global_map``. No parameter depends on the number of agents N, so a policy trained with N = 3 runs with N = 5.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.distributions import DiagGaussianDistribution
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import Schedule
+from torch import nn
+
+from sb3_latentswarm.common.type_aliases import LatentState
+
+ACTOR_KEYS = ("local_obs", "proprio", "link_row")
+CRITIC_KEYS = ("swarm_proprio", "global_map")
+REQUIRED_KEYS = ACTOR_KEYS + CRITIC_KEYS
+POSITION_DIMS = 3
+"""The first three entries of the proprioceptive state e_t are the (normalized) position p_t."""
+
+
+class StepOutput(NamedTuple):
+    """Everything one latent step produces for a batch of agents (leading dim: slots)."""
+
+    state: LatentState
+    """The new state, to carry into the next step."""
+    received_message: th.Tensor
+    """m_t, the mean of live in-link messages (zeros when none arrived), (B, d_mu + d_tau)."""
+    predicted_message: th.Tensor
+    """mhat_t = P(rho_t, o_t, e_t), evaluated at every step, (B, d_mu + d_tau)."""
+    has_message: th.Tensor
+    """Whether N_t^i is not empty, (B,) bool."""
+
+
+class SequenceEvaluation(NamedTuple):
+    """Outputs of :meth:`LatentSwarmPolicy.evaluate_sequences`, time-major ``(T, B, ...)``."""
+
+    values: th.Tensor
+    log_prob: th.Tensor
+    entropy: th.Tensor
+    map_reconstruction: th.Tensor
+    """D_eta(mu_t), (T, B, grid_height * grid_width)."""
+    received_message: th.Tensor
+    predicted_message: th.Tensor
+    has_message: th.Tensor
+
+
+def _mlp(sizes: list[int], activation: type[nn.Module] = nn.Tanh) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i in range(len(sizes) - 1):
+        layers.append(nn.Linear(sizes[i], sizes[i + 1]))
+        if i < len(sizes) - 2:
+            layers.append(activation())
+    return nn.Sequential(*layers)
+
+
+class LatentSwarmPolicy(BasePolicy):
+    """Actor-critic policy with per-UAV map, task and memory GRU states and latent message passing.
+
+    :param observation_space: Dict space with keys ``local_obs``, ``proprio``, ``link_row``, ``swarm_proprio``,
+        ``global_map`` (as produced by :class:`~sb3_latentswarm.envs.SwarmReconEnv`)
+    :param action_space: Box action space
+    :param lr_schedule: learning rate schedule
+    :param latent_dim: default size of every latent state (paper: d_mu = d_tau = d_rho = 512)
+    :param map_dim: d_mu, size of the map state (default ``latent_dim``)
+    :param task_dim: d_tau, size of the task state (default ``latent_dim``)
+    :param memory_dim: d_rho, size of the memory state (default ``latent_dim``)
+    :param predictor_hidden: hidden width of the message predictor P_zeta
+    :param decoder_hidden: hidden width of the map decoder D_eta
+    :param critic_hidden: hidden width of the centralized critic V_omega
+    :param actor_hidden: hidden width of the actor head on tau_t
+    :param log_std_init: initial log std of the Gaussian actor
+    :param log_std_bounds: the state-dependent log std is clamped to this range
+    :param ortho_init: orthogonal initialization of the linear layers (as SB3's ActorCriticPolicy)
+    :param optimizer_class: optimizer (default Adam)
+    :param optimizer_kwargs: optimizer keyword arguments (default ``eps=1e-5`` as SB3's PPO)
+    :param no_predictor: ablation: a zero vector replaces mhat_t during dropout
+    :param no_memory: ablation: rho is zeroed before every use
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Dict,
+        action_space: spaces.Box,
+        lr_schedule: Schedule,
+        latent_dim: int = 512,
+        map_dim: int | None = None,
+        task_dim: int | None = None,
+        memory_dim: int | None = None,
+        predictor_hidden: int = 256,
+        decoder_hidden: int = 256,
+        critic_hidden: int = 256,
+        actor_hidden: int = 64,
+        log_std_init: float = 0.0,
+        log_std_bounds: tuple[float, float] = (-5.0, 2.0),
+        ortho_init: bool = True,
+        optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
+        optimizer_kwargs: dict[str, Any] | None = None,
+        no_predictor: bool = False,
+        no_memory: bool = False,
+        **unused_kwargs: Any,
+    ):
+        if unused_kwargs:
+            # RecurrentPPO passes use_sde; anything else is a typo the user should hear about
+            unexpected = set(unused_kwargs) - {"use_sde"}
+            if unexpected:
+                raise TypeError(f"LatentSwarmPolicy got unexpected keyword argument(s): {sorted(unexpected)}")
+            if unused_kwargs.get("use_sde"):
+                raise ValueError("LatentSwarmPolicy does not support use_sde=True")
+        check_observation_space(observation_space)
+        if not isinstance(action_space, spaces.Box):
+            raise TypeError(f"LatentSwarmPolicy needs a Box action space, got {action_space}")
+        if optimizer_kwargs is None:
+            optimizer_kwargs = {"eps": 1e-5}
+        super().__init__(
+            observation_space,
+            action_space,
+            optimizer_class=optimizer_class,
+            optimizer_kwargs=optimizer_kwargs,
+            normalize_images=False,
+        )
+        for name, value in (("latent_dim", latent_dim), ("predictor_hidden", predictor_hidden)):
+            if int(value) < 1:
+                raise ValueError(f"{name} must be >= 1, got {value}")
+        self.latent_dim = latent_dim
+        self.map_dim = map_dim or latent_dim
+        self.task_dim = task_dim or latent_dim
+        self.memory_dim = memory_dim or latent_dim
+        self.message_dim = self.map_dim + self.task_dim
+        self.predictor_hidden = predictor_hidden
+        self.decoder_hidden = decoder_hidden
+        self.critic_hidden = critic_hidden
+        self.actor_hidden = actor_hidden
+        self.log_std_init = log_std_init
+        self.log_std_bounds = tuple(log_std_bounds)
+        self.ortho_init = ortho_init
+        self.no_predictor = no_predictor
+        self.no_memory = no_memory
+
+        self.local_obs_dim = int(np.prod(observation_space["local_obs"].shape))
+        self.proprio_dim = int(observation_space["proprio"].shape[-1])
+        self.map_shape = tuple(observation_space["global_map"].shape)
+        self.n_cells = int(np.prod(self.map_shape))
+        self.action_dim = int(np.prod(action_space.shape))
+        o_dim, e_dim, d_mu, d_tau, d_rho, d_msg = (
+            self.local_obs_dim,
+            self.proprio_dim,
+            self.map_dim,
+            self.task_dim,
+            self.memory_dim,
+            self.message_dim,
+        )
+
+        # E_phi(mu_{t-1}; o_t, p_t, m^mu_t)
+        self.map_encoder = nn.GRUCell(o_dim + POSITION_DIMS + d_mu, d_mu)
+        # D_eta(mu_t) -> M_hat_t
+        self.map_decoder = _mlp([d_mu, decoder_hidden, self.n_cells], nn.ReLU)
+        # F_theta(tau_{t-1}; o_t, e_t, mu_{t-1}, mbar_t)
+        self.task_encoder = nn.GRUCell(o_dim + e_dim + d_mu + d_msg, d_tau)
+        # G_psi(rho_{t-1}; tau_{t-1}, o_{t-1}, mbar_{t-1})
+        self.memory_encoder = nn.GRUCell(d_tau + o_dim + d_msg, d_rho)
+        # P_zeta(rho_t, o_t, e_t) -> mhat_t
+        self.message_predictor = _mlp([d_rho + o_dim + e_dim, predictor_hidden, d_msg])
+        # pi_xi(a | tau_t): mean and diagonal log std
+        self.actor_trunk = nn.Sequential(nn.Linear(d_tau, actor_hidden), nn.Tanh())
+        self.action_mean = nn.Linear(actor_hidden, self.action_dim)
+        self.action_log_std = nn.Linear(actor_hidden, self.action_dim)
+        # V_omega(s_t), s_t = ({e_t^j}_j, M_hat_t): map encoder + mean-pooled proprio encoder, N-independent
+        self.critic_map = nn.Sequential(nn.Linear(self.n_cells, critic_hidden), nn.ReLU())
+        self.critic_agents = nn.Sequential(nn.Linear(e_dim, critic_hidden // 4), nn.ReLU())
+        self.critic_head = _mlp([critic_hidden + critic_hidden // 4, critic_hidden, 1], nn.ReLU)
+        self.action_dist = DiagGaussianDistribution(self.action_dim)
+
+        if ortho_init:
+            self._init_weights()
+        self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
+
+    # ------------------------------------------------------------------ construction helpers
+    def _init_weights(self) -> None:
+        for module in self.modules():
+            if isinstance(module, nn.Linear):
+                nn.init.orthogonal_(module.weight, gain=np.sqrt(2))
+                nn.init.zeros_(module.bias)
+        nn.init.orthogonal_(self.action_mean.weight, gain=0.01)
+        nn.init.orthogonal_(self.action_log_std.weight, gain=0.01)
+        nn.init.constant_(self.action_log_std.bias, self.log_std_init)
+        nn.init.orthogonal_(self.critic_head[-1].weight, gain=1.0)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(
+            latent_dim=self.latent_dim,
+            map_dim=self.map_dim,
+            task_dim=self.task_dim,
+            memory_dim=self.memory_dim,
+            predictor_hidden=self.predictor_hidden,
+            decoder_hidden=self.decoder_hidden,
+            critic_hidden=self.critic_hidden,
+            actor_hidden=self.actor_hidden,
+            log_std_init=self.log_std_init,
+            log_std_bounds=self.log_std_bounds,
+            ortho_init=self.ortho_init,
+            lr_schedule=self._dummy_schedule,
+            no_predictor=self.no_predictor,
+            no_memory=self.no_memory,
+        )
+        return data
+
+    @property
+    def latent_dims(self) -> tuple[int, ...]:
+        """Sizes of the :class:`LatentState` fields, in field order."""
+        return (self.map_dim, self.task_dim, self.memory_dim, self.local_obs_dim, self.message_dim)
+
+    def initial_state(self, n_slots: int) -> LatentState:
+        """All-zero latent state for ``n_slots`` agents (the state at an episode start)."""
+        return LatentState(*(th.zeros(n_slots, dim, device=self.device) for dim in self.latent_dims))
+
+    # ------------------------------------------------------------------ the latent step (Sec. III)
+    def latent_step(self, obs: dict[str, th.Tensor], state: LatentState, episode_starts: th.Tensor) -> StepOutput:
+        """One step of every latent update for a batch of whole swarms.
+
+        :param obs: actor observation tensors of step t with leading dim B = n_swarms * n_agents (env-major)
+        :param state: the state carried in from step t-1
+        :param episode_starts: (B,) 1.0 where obs is the first of an episode: the state is reset to zero there
+        """
+        keep = (1.0 - episode_starts.float()).unsqueeze(-1)
+        map_prev, task_prev, memory_prev, local_prev, message_prev = (field * keep for field in state)
+        local_obs = obs["local_obs"].float().flatten(1)  # (B, o_dim)
+        proprio = obs["proprio"].float()  # (B, e_dim)
+        link_row = obs["link_row"].float()  # (B, N)
+        n_agents = link_row.shape[-1]
+        batch = local_obs.shape[0]
+        if batch % n_agents != 0:
+            raise ValueError(f"The batch of {batch} slots is not a whole number of swarms of {n_agents} agents")
+        n_swarms = batch // n_agents
+
+        # Sec. III-B: z_{t-1}^j = [mu_{t-1}^j; tau_{t-1}^j],  m_t^i = mean_{j in N_t^i} z_{t-1}^j
+        link_mask = link_row.view(n_swarms, n_agents, n_agents)  # [i, j] = 1 iff j -> i delivered at t
+        messages = th.cat([map_prev, task_prev], dim=-1).view(n_swarms, n_agents, self.message_dim)
+        in_degree = link_mask.sum(-1, keepdim=True)  # |N_t^i|, (n_swarms, N, 1)
+        received_message = (th.bmm(link_mask, messages) / in_degree.clamp(min=1.0)).view(batch, self.message_dim)
+        has_message = (in_degree > 0).view(batch)
+
+        # Sec. III-A: rho_t = G_psi(rho_{t-1}, tau_{t-1}, o_{t-1}, mbar_{t-1})   (no_memory: rho zeroed before use)
+        if self.no_memory:
+            memory_prev = th.zeros_like(memory_prev)
+        memory_state = self.memory_encoder(th.cat([task_prev, local_prev, message_prev], dim=-1), memory_prev)
+        memory_used = th.zeros_like(memory_state) if self.no_memory else memory_state
+
+        # Sec. III-C: mhat_t = P_zeta(rho_t, o_t, e_t);  mbar_t = m_t if N_t^i != {} else mhat_t
+        predicted_message = self.message_predictor(th.cat([memory_used, local_obs, proprio], dim=-1))
+        substitute = th.zeros_like(predicted_message) if self.no_predictor else predicted_message
+        best_message = th.where(has_message.unsqueeze(-1), received_message, substitute)
+
+        # Sec. III-A, asymmetric update: mu_t = E_phi(mu_{t-1}, o_t, p_t, m^mu_t), m^mu_t = 0 when nothing arrived
+        # (received_message is already zero there, so the predictor never reaches the map state)
+        map_message = received_message[:, : self.map_dim]
+        position = proprio[:, :POSITION_DIMS]
+        map_state = self.map_encoder(th.cat([local_obs, position, map_message], dim=-1), map_prev)
+
+        # Sec. III-A: tau_t = F_theta(tau_{t-1}, o_t, e_t, mu_{t-1}, mbar_t)
+        task_state = self.task_encoder(th.cat([local_obs, proprio, map_prev, best_message], dim=-1), task_prev)
+
+        new_state = LatentState(map_state, task_state, memory_state, local_obs, best_message)
+        return StepOutput(new_state, received_message, predicted_message, has_message)
+
+    # ------------------------------------------------------------------ heads
+    def action_distribution(self, task_state: th.Tensor) -> DiagGaussianDistribution:
+        """pi_xi(a | tau_t): Gaussian with state-dependent mean and diagonal std (Sec. III-D)."""
+        hidden = self.actor_trunk(task_state)
+        log_std = self.action_log_std(hidden).clamp(*self.log_std_bounds)
+        return self.action_dist.proba_distribution(self.action_mean(hidden), log_std)
+
+    def predict_values(self, obs: dict[str, th.Tensor]) -> th.Tensor:  # type: ignore[override]
+        """V_omega(s_t) for every slot, (B, 1); computed once per swarm and broadcast to its agents."""
+        swarm_proprio = obs["swarm_proprio"].float()  # (B, N, e_dim)
+        n_agents = swarm_proprio.shape[-2]
+        batch_shape = swarm_proprio.shape[:-2]
+        flat_proprio = swarm_proprio.reshape(-1, n_agents, n_agents, self.proprio_dim)[:, 0]  # (n_swarms, N, e_dim)
+        flat_map = obs["global_map"].float().reshape(-1, n_agents, self.n_cells)[:, 0]  # (n_swarms, n_cells)
+        features = th.cat([self.critic_map(flat_map), self.critic_agents(flat_proprio).mean(dim=1)], dim=-1)
+        values = self.critic_head(features)  # (n_swarms, 1)
+        return values.repeat_interleave(n_agents, dim=0).reshape(*batch_shape, 1)
+
+    def decode_map(self, map_state: th.Tensor) -> th.Tensor:
+        """D_eta(mu_t): the reconstruction of M_hat_t, flattened row-major."""
+        return self.map_decoder(map_state)
+
+    # ------------------------------------------------------------------ SB3 entry points
+    def forward(  # type: ignore[override]
+        self,
+        obs: dict[str, th.Tensor],
+        latent_state: LatentState,
+        episode_starts: th.Tensor,
+        deterministic: bool = False,
+    ) -> tuple[th.Tensor, th.Tensor, th.Tensor, LatentState]:
+        """One rollout step: actions, values, log-probabilities and the new latent state."""
+        step = self.latent_step(obs, latent_state, episode_starts)
+        distribution = self.action_distribution(step.state.task_state)
+        actions = distribution.get_actions(deterministic=deterministic)
+        log_prob = distribution.log_prob(actions)
+        values = self.predict_values(obs)
+        return actions, values, log_prob, step.state
+
+    def evaluate_sequences(
+        self,
+        obs: dict[str, th.Tensor],
+        actions: th.Tensor,
+        initial_state: LatentState,
+        episode_starts: th.Tensor,
+    ) -> SequenceEvaluation:
+        """Replay time-major sequences of whole swarms from their stored initial state (for ``train``).
+
+        :param obs: tensors of shape (T, B, ...)
+        :param actions: (T, B, action_dim)
+        :param initial_state: state carried into the first step, (B, ...)
+        :param episode_starts: (T, B)
+        """
+        n_steps = actions.shape[0]
+        state = initial_state
+        task_states, map_states, received, predicted, has_message = [], [], [], [], []
+        actor_obs = {key: obs[key] for key in ACTOR_KEYS}
+        # the recurrence is the only loop: over time; every step handles all agents of all swarms at once
+        for t in range(n_steps):
+            step = self.latent_step({key: value[t] for key, value in actor_obs.items()}, state, episode_starts[t])
+            state = step.state
+            task_states.append(state.task_state)
+            map_states.append(state.map_state)
+            received.append(step.received_message)
+            predicted.append(step.predicted_message)
+            has_message.append(step.has_message)
+        task_state = th.stack(task_states)  # (T, B, d_tau)
+        distribution = self.action_distribution(task_state.flatten(0, 1))
+        flat_actions = actions.flatten(0, 1)
+        log_prob = distribution.log_prob(flat_actions).view(n_steps, -1)
+        entropy = distribution.entropy().view(n_steps, -1)
+        critic_obs = {key: obs[key].flatten(0, 1) for key in CRITIC_KEYS}
+        values = self.predict_values(critic_obs).view(n_steps, -1)
+        map_reconstruction = self.decode_map(th.stack(map_states))
+        return SequenceEvaluation(
+            values=values,
+            log_prob=log_prob,
+            entropy=entropy,
+            map_reconstruction=map_reconstruction,
+            received_message=th.stack(received),
+            predicted_message=th.stack(predicted),
+            has_message=th.stack(has_message),
+        )
+
+    def _predict(self, observation: dict[str, th.Tensor], deterministic: bool = False) -> th.Tensor:  # type: ignore[override]
+        raise RuntimeError("LatentSwarmPolicy is recurrent: call predict(obs, state, episode_start, deterministic)")
+
+    def predict(  # type: ignore[override]
+        self,
+        observation: dict[str, np.ndarray] | dict[str, dict[str, np.ndarray]],
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray | dict[str, np.ndarray], tuple[np.ndarray, ...]]:
+        """Actions for whole swarms, as sb3-contrib's recurrent ``predict``.
+
+        :param observation: either a vec-env observation (dict of arrays whose leading dim is a whole number of
+            swarms, slots env-major) or a PettingZoo observation ``{agent: {key: array}}`` of one swarm, in which case
+            the actions come back as ``{agent: action}``
+        :param state: the state returned by the previous call (``None`` at the start: zeros)
+        :param episode_start: (n_slots,) 1 where a new episode starts (``None``: no resets)
+        :param deterministic: use the mean action
+        :return: actions (clipped to the action space) and the new state, a :class:`LatentState` of numpy arrays
+        """
+        agent_names = None
+        if observation and all(isinstance(value, dict) for value in observation.values()):
+            agent_names = list(observation.keys())
+            observation = {key: np.stack([observation[a][key] for a in agent_names]) for key in ACTOR_KEYS}
+        missing = [key for key in ACTOR_KEYS if key not in observation]
+        if missing:
+            raise ValueError(f"observation lacks the key(s) {missing}; LatentSwarmPolicy acts on {list(ACTOR_KEYS)}")
+        self.set_training_mode(False)
+        obs_tensor = {key: th.as_tensor(np.asarray(observation[key]), device=self.device) for key in ACTOR_KEYS}
+        if obs_tensor["local_obs"].dim() == len(self.observation_space["local_obs"].shape):
+            raise ValueError("predict needs a batch of whole swarms (leading slot dimension), got a single observation")
+        n_slots = obs_tensor["local_obs"].shape[0]
+        if state is None:
+            latent = self.initial_state(n_slots)
+        else:
+            latent = LatentState(*(th.as_tensor(np.asarray(s), dtype=th.float32, device=self.device) for s in state))
+            if latent.map_state.shape[0] != n_slots:
+                raise ValueError(f"state has {latent.map_state.shape[0]} slots but the observation has {n_slots}")
+        starts = th.zeros(n_slots, device=self.device) if episode_start is None else th.as_tensor(
+            np.asarray(episode_start, dtype=np.float32), device=self.device
+        )
+        with th.no_grad():
+            step = self.latent_step(obs_tensor, latent, starts)
+            actions = self.action_distribution(step.state.task_state).get_actions(deterministic=deterministic)
+        actions_np = np.clip(actions.cpu().numpy(), self.action_space.low, self.action_space.high)
+        new_state = LatentState(*(field.cpu().numpy() for field in step.state))
+        if agent_names is not None:
+            return dict(zip(agent_names, actions_np)), new_state
+        return actions_np, new_state
+
+
+def check_observation_space(observation_space: spaces.Space) -> None:
+    """Raise a clear error when the observation space lacks what the latent-swarm policy reads."""
+    if not isinstance(observation_space, spaces.Dict):
+        raise TypeError(
+            f"LatentSwarmPolicy needs a Dict observation space with keys {list(REQUIRED_KEYS)} "
+            f"(use sb3_latentswarm.make_vec_env), got {type(observation_space).__name__}"
+        )
+    missing = [key for key in REQUIRED_KEYS if key not in observation_space.spaces]
+    if missing:
+        raise ValueError(
+            f"The observation space lacks the key(s) {missing} needed by LatentSwarmPolicy "
+            f"(has {list(observation_space.spaces)}); use sb3_latentswarm.make_vec_env"
+        )
+

@@ -132,8 +132,9 @@ class SwarmRolloutBuffer(DictRolloutBuffer):
             return picked.reshape(self.chunk_length, n_seq * self.n_agents, *tensor.shape[4:])
 
         observations = {key[4:]: time_major(value) for key, value in cache.items() if key.startswith("obs/")}
+        n_fields = len(self.latent_dims)
         latent = LatentState(
-            *(cache[f"latent/{i}"][chunk_idx, swarm_idx].reshape(n_seq * self.n_agents, -1) for i in range(len(self.latent_dims)))
+            *(cache[f"latent/{i}"][chunk_idx, swarm_idx].reshape(n_seq * self.n_agents, -1) for i in range(n_fields))
         )
         return SwarmRolloutBufferSamples(
             observations=observations,

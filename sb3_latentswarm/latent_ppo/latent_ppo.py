@@ -17,7 +17,6 @@ from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 import torch as th
-from gymnasium import spaces
 from sb3_contrib import RecurrentPPO
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
@@ -29,12 +28,34 @@ from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 from sb3_latentswarm.common.buffers import SwarmRolloutBuffer
 from sb3_latentswarm.common.schedules import paper_learning_rate
 from sb3_latentswarm.common.type_aliases import LatentState
-from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy, check_observation_space
+from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy, SequenceEvaluation, check_observation_space
 
 SelfLatentSwarmPPO = TypeVar("SelfLatentSwarmPPO", bound="LatentSwarmPPO")
 
+PAPER_LEARNING_RATE = paper_learning_rate()
+"""1e-4 for the first 1000 of 1600 updates, 1e-5 after (Sec. IV)."""
+
 N_AGENT_KEYS = ("link_row", "swarm_proprio")
 """Observation keys whose shape depends on the number of agents; the policy's parameters do not."""
+
+
+def auxiliary_losses(evaluation: SequenceEvaluation, global_map: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+    """The self-supervised terms of the joint loss.
+
+    Both are averaged per element rather than summed (see the paper-to-code table): a sum over the 2500 cells would
+    make c2 = 5 swamp the PPO terms under the global gradient-norm clip.
+
+    :param evaluation: outputs of :meth:`LatentSwarmPolicy.evaluate_sequences`, time-major (T, B, ...)
+    :param global_map: M_hat_t for every agent-step, (T, B, H, W)
+    :return: (L_map, L_pred)
+    """
+    # Eq. (3): L_map = 1/(NT) sum_i sum_t ||D(mu_t^i) - M_hat_t||^2
+    map_loss = ((evaluation.map_reconstruction - global_map.float().flatten(2)) ** 2).mean()
+    # Eq. (4): L_pred = mean over t in T_comm^i of ||m_t^i - mhat_t^i||^2; the received m is a target (no gradient)
+    pred_error = ((evaluation.predicted_message - evaluation.received_message.detach()) ** 2).mean(-1)
+    comm = evaluation.has_message.float()
+    pred_loss = (pred_error * comm).sum() / comm.sum().clamp(min=1.0)
+    return map_loss, pred_loss
 
 
 class LatentSwarmPPO(RecurrentPPO):
@@ -79,7 +100,7 @@ class LatentSwarmPPO(RecurrentPPO):
         self,
         policy: str | type[LatentSwarmPolicy],
         env: GymEnv | str,
-        learning_rate: float | Schedule = paper_learning_rate(),
+        learning_rate: float | Schedule = PAPER_LEARNING_RATE,
         n_steps: int = 600,
         batch_size: int = 4500,
         n_epochs: int = 5,
@@ -367,19 +388,13 @@ class LatentSwarmPPO(RecurrentPPO):
                 # L_VF = mean (R_t - V(s_t))^2, optionally clipped around the old value
                 values = evaluation.values
                 if clip_range_vf is not None:
-                    values = rollout_data.old_values + th.clamp(values - rollout_data.old_values, -clip_range_vf, clip_range_vf)
+                    delta = th.clamp(values - rollout_data.old_values, -clip_range_vf, clip_range_vf)
+                    values = rollout_data.old_values + delta
                 value_loss = ((rollout_data.returns - values) ** 2).mean()
 
                 entropy_loss = -evaluation.entropy.mean()
 
-                # Eq. (3), L_map = mean over agent-steps of ||D(mu_t^i) - M_hat_t||^2, per cell (see docs)
-                map_target = rollout_data.observations["global_map"].float().flatten(2)
-                map_loss = ((evaluation.map_reconstruction - map_target) ** 2).mean()
-
-                # Eq. (4), L_pred = mean over communication steps of ||m_t^i - mhat_t^i||^2, per element; m is a target
-                pred_error = ((evaluation.predicted_message - evaluation.received_message.detach()) ** 2).mean(-1)
-                comm = evaluation.has_message.float()
-                pred_loss = (pred_error * comm).sum() / comm.sum().clamp(min=1.0)
+                map_loss, pred_loss = auxiliary_losses(evaluation, rollout_data.observations["global_map"])
 
                 # Eq. (2): L = -L_CLIP + c1 L_VF + c2 L_map + c3 L_pred (and SB3's entropy bonus)
                 loss = (
@@ -455,7 +470,3 @@ class LatentSwarmPPO(RecurrentPPO):
     def last_latent_state(self) -> LatentState:
         """The latent state carried between rollouts (one row per vec-env slot)."""
         return self._last_latent_state
-
-    @staticmethod
-    def _is_box(space: spaces.Space) -> bool:
-        return isinstance(space, spaces.Box)

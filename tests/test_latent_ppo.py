@@ -293,3 +293,22 @@ def test_logs_paper_keys(tmp_path):
         "rollout/ep_rew_mean",
     ):
         assert key in header, key
+
+
+def test_truncated_swarms_are_bootstrapped_with_the_critic():
+    model = make_model()
+    obs = model.env.reset()
+    n_slots = model.env.num_envs
+    dones = np.zeros(n_slots, dtype=bool)
+    dones[3:6] = True  # swarm 1 cut off by the horizon
+    infos = [{} for _ in range(n_slots)]
+    for slot in range(3, 6):
+        infos[slot] = {"TimeLimit.truncated": True, "terminal_observation": {k: v[slot] for k, v in obs.items()}}
+    bootstrap = model._truncation_values(infos, dones)
+    with th.no_grad():
+        expected = model.policy.predict_values({k: th.as_tensor(v) for k, v in obs.items()}).flatten().numpy()
+    np.testing.assert_allclose(bootstrap[3:6], expected[3:6], rtol=1e-5)
+    assert np.all(bootstrap[:3] == 0)
+    for slot in range(3, 6):
+        infos[slot]["TimeLimit.truncated"] = False  # terminated, not truncated: no bootstrap
+    assert np.all(model._truncation_values(infos, dones) == 0)

@@ -28,6 +28,7 @@ from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 from sb3_latentswarm.common.buffers import SwarmRolloutBuffer
 from sb3_latentswarm.common.schedules import paper_learning_rate
 from sb3_latentswarm.common.type_aliases import LatentState
+from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy, SequenceEvaluation, check_observation_space
 
 SelfLatentSwarmPPO = TypeVar("SelfLatentSwarmPPO", bound="LatentSwarmPPO")
@@ -56,6 +57,11 @@ def auxiliary_losses(evaluation: SequenceEvaluation, global_map: th.Tensor) -> t
     comm = evaluation.has_message.float()
     pred_loss = (pred_error * comm).sum() / comm.sum().clamp(min=1.0)
     return map_loss, pred_loss
+
+
+def _env_config(env: VecEnv) -> SwarmConfig | None:
+    config = getattr(env, "config", None)
+    return config if isinstance(config, SwarmConfig) else None
 
 
 class LatentSwarmPPO(RecurrentPPO):
@@ -159,6 +165,8 @@ class LatentSwarmPPO(RecurrentPPO):
         self.pred_coef = pred_coef
         self.chunk_length = chunk_length
         self.n_agents: int | None = None
+        self.swarm_config: SwarmConfig | None = None
+        """The env config of training (saved with the model; the evaluation's default)."""
         if self.env is not None:
             self.n_agents = self._check_swarm_env(self.env)
             sequence = self.n_agents * chunk_length
@@ -196,6 +204,7 @@ class LatentSwarmPPO(RecurrentPPO):
         if self.env is not None:
             self.n_agents = self._check_swarm_env(self.env)
             self.observation_space = self.env.observation_space
+            self.swarm_config = _env_config(self.env)
         self.policy = self.policy_class(  # type: ignore[assignment]
             self.observation_space, self.action_space, self.lr_schedule, **self.policy_kwargs
         )
@@ -246,6 +255,7 @@ class LatentSwarmPPO(RecurrentPPO):
         if force_reset:
             self._last_obs = None  # type: ignore[assignment]
         self.n_agents = n_agents
+        self.swarm_config = _env_config(env)
         self.n_envs = env.num_envs
         self.env = env
         self.observation_space = env.observation_space
@@ -315,8 +325,7 @@ class LatentSwarmPPO(RecurrentPPO):
             self._update_info_buffer(infos, dones)
             self._update_swarm_summaries(infos, dones)
             n_steps += 1
-            # The env terminates every episode (energy, horizon T or full coverage are all terminal in the paper's
-            # finite-horizon task) and SuperSuit never sets TimeLimit.truncated, so no timeout bootstrap is needed.
+            rewards = rewards + self.gamma * self._truncation_values(infos, dones)
             rollout_buffer.add(
                 self._last_obs,  # type: ignore[arg-type]
                 actions,
@@ -343,6 +352,24 @@ class LatentSwarmPPO(RecurrentPPO):
         callback.update_locals(locals())
         callback.on_rollout_end()
         return True
+
+    def _truncation_values(self, infos: list[dict[str, Any]], dones: np.ndarray) -> np.ndarray:
+        """V(s_T) of swarms cut off by the horizon (``TimeLimit.truncated``), 0 elsewhere (SB3's timeout bootstrap).
+
+        Truncation ends all agents of a swarm together, so the terminal observations form whole swarms and the
+        centralized critic evaluates them in one batch.
+        """
+        bootstrap = np.zeros(len(dones), dtype=np.float32)
+        slots = [i for i in np.flatnonzero(dones) if infos[i].get("TimeLimit.truncated", False)]
+        slots = [i for i in slots if infos[i].get("terminal_observation") is not None]
+        if not slots:
+            return bootstrap
+        keys = self.observation_space.spaces  # type: ignore[attr-defined]
+        terminal = {key: np.stack([infos[i]["terminal_observation"][key] for i in slots]) for key in keys}
+        with th.no_grad():
+            values = self.policy.predict_values(obs_as_tensor(terminal, self.device))
+        bootstrap[slots] = values.cpu().numpy().flatten()
+        return bootstrap
 
     def _update_swarm_summaries(self, infos: list[dict[str, Any]], dones: np.ndarray) -> None:
         """Keep the end-of-episode summary of each finished swarm (read from its first agent's slot)."""

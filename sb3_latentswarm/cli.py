@@ -1,0 +1,203 @@
+"""The ``sb3-latentswarm`` command: ``train``, ``evaluate`` and ``render``.
+
+    sb3-latentswarm train --preset demo --evaluate          # the README's main job
+    sb3-latentswarm evaluate --model runs/demo/model.zip --p-fail-sweep
+    sb3-latentswarm render --model runs/demo/model.zip --output episode.gif
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.presets import PRESETS, Preset, get_preset
+
+
+def parse_overrides(pairs: list[str]) -> dict[str, Any]:
+    """Turn ``["p_fail=0.5", "n_agents=4"]`` into typed SwarmConfig overrides (types taken from the field defaults)."""
+    fields = {f.name: f for f in dataclasses.fields(SwarmConfig) if f.name != "extra"}
+    defaults = SwarmConfig()
+    overrides: dict[str, Any] = {}
+    for pair in pairs:
+        if "=" not in pair:
+            raise ValueError(f"--set expects FIELD=VALUE, got {pair!r}")
+        name, raw = pair.split("=", 1)
+        if name not in fields:
+            raise ValueError(f"--set: unknown SwarmConfig field {name!r}; fields: {', '.join(sorted(fields))}")
+        kind = type(getattr(defaults, name))
+        try:
+            overrides[name] = raw if kind is str else kind(float(raw)) if kind is int else kind(raw)
+        except ValueError:
+            raise ValueError(f"--set {name}: cannot read {raw!r} as {kind.__name__}") from None
+    return overrides
+
+
+def _preset_from_args(args: argparse.Namespace) -> Preset:
+    preset = get_preset(args.preset)
+    overrides = parse_overrides(args.set or [])
+    return preset.with_overrides(**overrides) if overrides else preset
+
+
+def _print_table(title: str, markdown: str) -> None:
+    print(f"\n### {title}\n")
+    print(markdown)
+
+
+def command_train(args: argparse.Namespace) -> int:
+    from sb3_latentswarm.envs import make_vec_env
+    from sb3_latentswarm.latent_ppo import LatentSwarmPPO
+
+    preset = _preset_from_args(args)
+    output = Path(args.output or f"runs/{preset.name}")
+    output.mkdir(parents=True, exist_ok=True)
+    total = args.total_timesteps or preset.total_timesteps
+    env = make_vec_env(preset.n_envs, config=preset.config, seed=args.seed)
+    model = LatentSwarmPPO(
+        "LatentSwarmPolicy",
+        env,
+        seed=args.seed,
+        device=args.device,
+        verbose=args.verbose,
+        tensorboard_log=args.tensorboard,
+        **preset.algo_kwargs,
+    )
+    print(f"Training preset '{preset.name}' ({preset.description}) for {total:,} agent-steps, seed {args.seed}")
+    start = time.perf_counter()
+    model.learn(total_timesteps=total, progress_bar=not args.no_progress, tb_log_name=f"latentswarm_{preset.name}")
+    train_seconds = time.perf_counter() - start
+    model_path = output / "model.zip"
+    model.save(model_path)
+    (output / "config.json").write_text(json.dumps(preset.config.to_dict(), indent=2))
+    print(f"Trained in {train_seconds:.0f} s; saved {model_path}")
+    if args.evaluate:
+        _evaluate_and_print(model, preset, args.seed, output, p_fail_sweep=False, baselines=True)
+    return 0
+
+
+def _evaluate_and_print(model, preset: Preset, seed: int, output: Path, p_fail_sweep: bool, baselines: bool) -> None:
+    from sb3_latentswarm.evaluation import (
+        CONDITIONS,
+        evaluate,
+        evaluate_conditions,
+        evaluate_p_fail_sweep,
+        summarize,
+        to_markdown,
+    )
+
+    config, episodes = preset.config, preset.eval_episodes
+    frames = [
+        evaluate_conditions(model, conditions=CONDITIONS, p_fail=config.p_fail, n_episodes=episodes, seed=seed, config=config)
+    ]
+    if baselines:
+        from sb3_latentswarm.baselines import FrontierPlanner, LawnmowerPlanner, RandomPlanner
+
+        for label, planner in (
+            ("random", RandomPlanner(config, seed=seed)),
+            ("lawnmower", LawnmowerPlanner(config)),
+            ("frontier", FrontierPlanner(config)),
+        ):
+            frame = evaluate(planner, p_fail=config.p_fail, n_episodes=episodes, seed=seed, config=config)
+            frame["condition"] = label
+            frames.append(frame)
+    import pandas as pd
+
+    table = pd.concat(frames, ignore_index=True)
+    table.to_csv(output / "conditions.csv", index=False)
+    summary = summarize(table, by="condition")
+    _print_table(f"Conditions (p_f = {config.p_fail}, {episodes} episodes each)", to_markdown(summary))
+    (output / "conditions.md").write_text(to_markdown(summary) + "\n")
+    if p_fail_sweep:
+        sweep = evaluate_p_fail_sweep(model, p_fails=preset.p_fails, n_episodes=episodes, seed=seed, config=config)
+        sweep.to_csv(output / "p_fail_sweep.csv", index=False)
+        sweep_summary = summarize(sweep, by="p_fail")
+        _print_table("p_f sweep (proposed)", to_markdown(sweep_summary))
+        (output / "p_fail_sweep.md").write_text(to_markdown(sweep_summary) + "\n")
+    print(f"\nTables written to {output}/")
+
+
+def _load_model(path: str, device: str):
+    from sb3_latentswarm.latent_ppo import LatentSwarmPPO
+
+    if not Path(path).exists():
+        raise ValueError(f"--model: no file at {path}")
+    return LatentSwarmPPO.load(path, device=device)
+
+
+def command_evaluate(args: argparse.Namespace) -> int:
+    preset = _preset_from_args(args)
+    model = _load_model(args.model, args.device)
+    if args.episodes:
+        preset = dataclasses.replace(preset, eval_episodes=args.episodes)
+    output = Path(args.output or Path(args.model).parent)
+    output.mkdir(parents=True, exist_ok=True)
+    _evaluate_and_print(model, preset, args.seed, output, p_fail_sweep=args.p_fail_sweep, baselines=not args.no_baselines)
+    return 0
+
+
+def command_render(args: argparse.Namespace) -> int:
+    from sb3_latentswarm.rendering import render_episode
+
+    preset = _preset_from_args(args)
+    model = _load_model(args.model, args.device) if args.model else None
+    path = render_episode(model, preset.config, args.output, seed=args.seed, condition=args.condition, fps=args.fps)
+    print(f"Wrote {path}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="sb3-latentswarm", description="Train and evaluate latent-state UAV swarms.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def add_common(p: argparse.ArgumentParser, default_preset: str) -> None:
+        p.add_argument("--preset", default=default_preset, choices=sorted(PRESETS), help="experiment budget")
+        p.add_argument("--set", nargs="*", metavar="FIELD=VALUE", help="override SwarmConfig fields, e.g. p_fail=0.5")
+        p.add_argument("--seed", type=int, default=0)
+        p.add_argument("--device", default="auto")
+
+    train = sub.add_parser("train", help="train LatentSwarmPPO on a preset")
+    add_common(train, "demo")
+    train.add_argument("--total-timesteps", type=int, default=None, help="override the preset's budget (agent-steps)")
+    train.add_argument("--output", default=None, help="folder for model.zip and tables (default runs/PRESET)")
+    train.add_argument("--evaluate", action="store_true", help="evaluate all conditions and baselines afterwards")
+    train.add_argument("--tensorboard", default=None, help="TensorBoard log folder")
+    train.add_argument("--no-progress", action="store_true", help="no progress bar")
+    train.add_argument("--verbose", type=int, default=0)
+    train.set_defaults(func=command_train)
+
+    evaluate = sub.add_parser("evaluate", help="evaluate a saved model on the five conditions of Table I")
+    add_common(evaluate, "demo")
+    evaluate.add_argument("--model", required=True)
+    evaluate.add_argument("--episodes", type=int, default=None)
+    evaluate.add_argument("--p-fail-sweep", action="store_true", help="also run the p_f sweep of Table I (right)")
+    evaluate.add_argument("--no-baselines", action="store_true")
+    evaluate.add_argument("--output", default=None)
+    evaluate.set_defaults(func=command_evaluate)
+
+    render = sub.add_parser("render", help="write an animated GIF of one episode")
+    add_common(render, "demo")
+    render.add_argument("--model", default=None, help="saved model (default: random actions)")
+    render.add_argument("--condition", default="proposed")
+    render.add_argument("--output", default="episode.gif")
+    render.add_argument("--fps", type=int, default=10)
+    render.set_defaults(func=command_render)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except ValueError as error:
+        parser.exit(2, f"sb3-latentswarm {args.command}: error: {error}\n")
+    return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,137 @@
+"""Named training/evaluation budgets: ``paper`` (the paper's setting verbatim), ``fast`` (a documented reduction for a
+2-core CPU), ``demo`` (the README's main job, about two minutes) and ``smoke`` (seconds, for the test suite).
+
+Each preset is a :class:`Preset`: an env config, the ``LatentSwarmPPO`` keyword arguments, the training budget and the
+evaluation budget. ``docs/concepts.md`` explains each reduction.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+from sb3_latentswarm.common.schedules import paper_learning_rate
+from sb3_latentswarm.config import SwarmConfig
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A complete experiment budget."""
+
+    name: str
+    config: SwarmConfig
+    """The env of training and evaluation."""
+    n_envs: int
+    """Env copies (swarms) trained in parallel."""
+    total_timesteps: int
+    """Training budget in agent-steps (SB3's ``num_timesteps`` counts vec-env slots)."""
+    algo_kwargs: dict[str, Any] = field(default_factory=dict)
+    """Keyword arguments of ``LatentSwarmPPO`` (``policy_kwargs`` included)."""
+    eval_episodes: int = 10
+    """Monte Carlo runs per condition and per p_f value (paper: 10)."""
+    p_fails: tuple[float, ...] = (0.0, 0.05, 0.15, 0.3, 0.5)
+    """The p_f sweep of Table I (right)."""
+    description: str = ""
+
+    @property
+    def updates(self) -> int:
+        """Number of rollout/update iterations the budget gives."""
+        per_update = self.algo_kwargs["n_steps"] * self.n_envs * self.config.n_agents
+        return max(1, -(-self.total_timesteps // per_update))
+
+    def with_overrides(self, **config_overrides: Any) -> Preset:
+        """A copy with env config fields replaced (validated)."""
+        return dataclasses.replace(self, config=self.config.replace(**config_overrides))
+
+
+def _algo_kwargs(n_steps: int, chunk_length: int, batch_size: int, latent_dim: int, hidden: int, **extra: Any) -> dict:
+    kwargs: dict[str, Any] = dict(
+        n_steps=n_steps,
+        chunk_length=chunk_length,
+        batch_size=batch_size,
+        policy_kwargs=dict(
+            latent_dim=latent_dim,
+            predictor_hidden=hidden,
+            decoder_hidden=hidden,
+            critic_hidden=hidden,
+            actor_hidden=min(hidden, 64),
+        ),
+    )
+    kwargs.update(extra)
+    return kwargs
+
+
+def _paper() -> Preset:
+    n_envs, n_steps, updates = 40, 600, 1600
+    config = SwarmConfig()
+    return Preset(
+        name="paper",
+        config=config,
+        n_envs=n_envs,
+        total_timesteps=updates * n_steps * n_envs * config.n_agents,
+        algo_kwargs=_algo_kwargs(600, 25, 4500, 512, 256, learning_rate=paper_learning_rate(updates, 1000)),
+        description="Sec. IV verbatim: 50x50, N=3, d=512, 40 envs, 1600 updates of 600 steps (115M agent-steps; GPU).",
+    )
+
+
+def _fast() -> Preset:
+    # Half the cells at twice the cell size keeps the paper's 50 m x 50 m arena, so the channel geometry (and thus the
+    # distance-driven dropouts of Eq. (1)) is the paper's; speed and safety distance scale with the cell.
+    config = SwarmConfig(
+        grid_width=25,
+        grid_height=25,
+        cell_size=2.0,
+        v_max=2.0,
+        vz_max=1.0,
+        d_safe=4.0,
+        num_obstacles=8,
+        max_steps=300,
+        initial_energy=30.0,
+    )
+    n_envs, n_steps = 16, 300
+    return Preset(
+        name="fast",
+        config=config,
+        n_envs=n_envs,
+        total_timesteps=2_880_000,
+        algo_kwargs=_algo_kwargs(n_steps, 25, 3000, 64, 128, learning_rate=3e-4),
+        description="25x25 cells of 2 m (the paper's 50 m arena), T=300, d=64, 16 envs, 200 updates; ~45 min on 2 cores.",
+    )
+
+
+def _demo() -> Preset:
+    config = SwarmConfig(n_agents=2, grid_width=12, grid_height=12, max_steps=40, num_obstacles=5)
+    return Preset(
+        name="demo",
+        config=config,
+        n_envs=8,
+        total_timesteps=90_000,
+        algo_kwargs=_algo_kwargs(40, 10, 160, 32, 64, learning_rate=3e-4),
+        eval_episodes=10,
+        description="12x12, N=2, T=40, d=32: learns to beat a random swarm in about a minute.",
+    )
+
+
+def _smoke() -> Preset:
+    config = SwarmConfig(n_agents=3, grid_width=10, grid_height=10, max_steps=20, num_obstacles=4)
+    return Preset(
+        name="smoke",
+        config=config,
+        n_envs=2,
+        total_timesteps=2 * 20 * 2 * 3,
+        algo_kwargs=_algo_kwargs(20, 5, 30, 8, 16, n_epochs=1),
+        eval_episodes=2,
+        description="Seconds: checks the whole pipeline runs; results mean nothing.",
+    )
+
+
+PRESETS: dict[str, Preset] = {preset.name: preset for preset in (_paper(), _fast(), _demo(), _smoke())}
+
+
+def get_preset(name: str) -> Preset:
+    """The preset called ``name`` (one of ``PRESETS``)."""
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise ValueError(f"Unknown preset {name!r}; choose one of {sorted(PRESETS)}") from None

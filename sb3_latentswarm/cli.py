@@ -159,6 +159,12 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--set", nargs="*", metavar="FIELD=VALUE", help="override SwarmConfig fields, e.g. p_fail=0.5")
         p.add_argument("--seed", type=int, default=0)
         p.add_argument("--device", default="auto")
+        p.add_argument(
+            "--threads",
+            type=int,
+            default=1,
+            help="torch CPU threads (default 1: the small recurrent nets run fastest single-threaded; 0 keeps torch's)",
+        )
 
     train = sub.add_parser("train", help="train LatentSwarmPPO on a preset")
     add_common(train, "demo")
@@ -192,6 +198,12 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.threads < 0:
+        parser.exit(2, f"sb3-latentswarm {args.command}: error: --threads must be >= 0, got {args.threads}\n")
+    if args.threads:
+        import torch
+
+        torch.set_num_threads(args.threads)
     try:
         return args.func(args)
     except ValueError as error:

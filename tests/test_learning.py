@@ -6,7 +6,7 @@ import torch as th
 from sb3_latentswarm import LatentSwarmPPO, SwarmConfig
 from sb3_latentswarm.envs import SwarmReconEnv, make_vec_env
 
-CONFIG = SwarmConfig(n_agents=2, grid_width=12, grid_height=12, max_steps=40, num_obstacles=5)
+CONFIG = SwarmConfig(n_agents=2, grid_width=12, grid_height=12, max_steps=40, num_obstacles=5, v_max=1.0)
 
 
 def mean_final_coverage(act, episodes=20, seed=1000):

@@ -1,0 +1,419 @@
+"""Non-learned planners for :class:`~sb3_latentswarm.envs.SwarmReconEnv`, with the recurrent ``predict`` of a model.
+
+* :class:`RandomPlanner`: uniformly random horizontal velocity commands, the floor every planner must beat.
+* :class:`LawnmowerPlanner`: a boustrophedon sweep, one vertical strip of the arena per UAV; no communication.
+* :class:`FrontierPlanner`: greedy frontier exploration on per-UAV maps shared explicitly over the live links,
+  the explicit-communication mapping approach the paper names as future work (Sec. V, refs. [mahdoui2020,
+  westheider2023]): when the link j -> i is up at step t, UAV i merges UAV j's map, position and target of step t-1.
+
+All act only on the decentralized observation keys (``local_obs``, ``proprio``, ``link_row``), are vectorized over
+all slots of all swarms (slots env-major, agent-minor; N is read from the length of ``link_row``, so one planner
+serves any swarm size), hold the altitude at ``initial_altitude``, command no yaw, and respect the config's
+``action_frame``. Their state is explicit, as for
+:meth:`LatentSwarmPolicy.predict`: ``predict`` returns it and takes it back at the next step; a NamedTuple of arrays
+whose leading dimension is the slot, reset where ``episode_start`` is 1.
+
+Positions are read from ``proprio``: ``x = proprio[0] * grid_width * cell_size``, and the UAV's cell is
+``floor(x / cell_size)`` as in the env.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from sb3_latentswarm.config import SwarmConfig
+
+__all__ = ["FrontierPlanner", "FrontierState", "LawnmowerPlanner", "LawnmowerState", "RandomPlanner", "RandomState"]
+
+ACTOR_KEYS = ("local_obs", "proprio", "link_row")
+
+
+class _Planner:
+    """Shared parts: observation handling, positions, and the velocity command towards a waypoint."""
+
+    def __init__(self, config: SwarmConfig | None = None) -> None:
+        if config is None:
+            config = SwarmConfig()
+        elif not isinstance(config, SwarmConfig):
+            raise TypeError(f"config must be a SwarmConfig or None, got {type(config).__name__} ({config!r})")
+        self.config = config
+        self._step_length = config.v_max * config.dt  # metres per step at a full command
+        # cell centres in metres, along x (W,) and y (H,)
+        self._centres_x = (np.arange(config.grid_width) + 0.5) * config.cell_size
+        self._centres_y = (np.arange(config.grid_height) + 0.5) * config.cell_size
+
+    # ------------------------------------------------------------------ interface of a model
+    def initial_state(self, n_slots: int, n_agents: int) -> Any:
+        """The state before the first step of an episode, for ``n_slots`` UAVs in swarms of ``n_agents``."""
+        raise NotImplementedError
+
+    def predict(
+        self,
+        observation: dict[str, np.ndarray] | dict[str, dict[str, np.ndarray]],
+        state: Any = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray | dict[str, np.ndarray], Any]:
+        """Actions of every slot, as a recurrent SB3 model's ``predict``.
+
+        :param observation: a vec-env observation (dict of arrays with a leading slot dimension, whole swarms,
+            env-major) or a PettingZoo observation ``{agent: {key: array}}`` of one swarm (actions come back as
+            ``{agent: action}``); only ``local_obs``, ``proprio`` and ``link_row`` are read
+        :param state: the state returned by the previous call (``None``: a fresh episode)
+        :param episode_start: (n_slots,) 1 where an episode starts: that slot's state is reset
+        :param deterministic: ignored (every planner's action is a deterministic function of its inputs)
+        :return: actions in [-1, 1] of shape (n_slots, 4) and the new state
+        """
+        agent_names = None
+        if observation and all(isinstance(value, dict) for value in observation.values()):
+            agent_names = list(observation.keys())
+            observation = {key: np.stack([observation[a][key] for a in agent_names]) for key in ACTOR_KEYS}
+        missing = [key for key in ACTOR_KEYS if key not in observation]
+        if missing:
+            raise ValueError(f"observation lacks the key(s) {missing}; {type(self).__name__} acts on {list(ACTOR_KEYS)}")
+        local_obs = np.asarray(observation["local_obs"])
+        proprio = np.asarray(observation["proprio"], dtype=np.float64)
+        link_row = np.asarray(observation["link_row"])
+        fw = self.config.footprint_width
+        if local_obs.ndim != 2 or local_obs.shape[1] != fw * fw:
+            raise ValueError(
+                f"local_obs must have shape (n_slots, {fw * fw}) for sensor_range={self.config.sensor_range}, "
+                f"got {local_obs.shape}"
+            )
+        n_slots, n_agents = link_row.shape
+        if n_slots % n_agents != 0:
+            raise ValueError(f"The batch of {n_slots} slots is not a whole number of swarms of {n_agents} agents")
+        if state is None:
+            state = self.initial_state(n_slots, n_agents)
+        elif len(state[0]) != n_slots:
+            raise ValueError(f"state has {len(state[0])} slots but the observation has {n_slots}")
+        starts = np.zeros(n_slots, dtype=bool) if episode_start is None else np.asarray(episode_start).astype(bool)
+        actions, state = self._act(local_obs, proprio, link_row, state, starts)
+        if agent_names is not None:
+            return dict(zip(agent_names, actions)), state
+        return actions, state
+
+    def _act(self, local_obs: np.ndarray, proprio: np.ndarray, link_row: np.ndarray, state: Any, starts: np.ndarray):
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ helpers
+    def _positions(self, proprio: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Horizontal positions (n, 2) in metres and cells (n, 2) as (ix, iy), from e_t = [x/X, y/Y, ...]."""
+        cfg = self.config
+        xy = proprio[:, :2] * (cfg.grid_width * cfg.cell_size, cfg.grid_height * cfg.cell_size)
+        cells = np.floor(xy / cfg.cell_size).astype(np.intp)
+        np.clip(cells, 0, (cfg.grid_width - 1, cfg.grid_height - 1), out=cells)
+        return xy, cells
+
+    def _command(self, proprio: np.ndarray, xy: np.ndarray, target: np.ndarray, max_step: float) -> np.ndarray:
+        """[vx, vy, vz, yaw] in [-1, 1]: reach ``target`` (n, 2 metres) in as few steps as the speed allows, moving
+        at most ``max_step`` metres per axis and step; hold ``initial_altitude``; no yaw."""
+        cfg = self.config
+        actions = np.zeros((len(xy), 4))
+        step = min(self._step_length, max_step)
+        actions[:, :2] = np.clip(target - xy, -step, step) / self._step_length
+        if cfg.action_frame == "body":
+            # the env rotates (forward, lateral) by the heading chi before the move: apply the inverse rotation,
+            # scaled back into the box so that the direction is kept
+            chi = proprio[:, 6] * np.pi
+            cos, sin = np.cos(chi), np.sin(chi)
+            vx, vy = actions[:, 0].copy(), actions[:, 1].copy()
+            actions[:, 0], actions[:, 1] = vx * cos + vy * sin, -vx * sin + vy * cos
+            actions[:, :2] /= np.maximum(np.abs(actions[:, :2]).max(-1, keepdims=True), 1.0)
+        if cfg.vz_max > 0.0:
+            z = cfg.min_altitude + proprio[:, 2] * (cfg.max_altitude - cfg.min_altitude)
+            actions[:, 2] = np.clip((cfg.initial_altitude - z) / (cfg.vz_max * cfg.dt), -1.0, 1.0)
+        return actions
+
+
+# ---------------------------------------------------------------------------------------------- random
+def _splitmix64(x: np.ndarray) -> np.ndarray:
+    """The splitmix64 finalizer, elementwise on uint64 (wrapping arithmetic): a fast, well-mixed integer hash."""
+    x = x + np.uint64(0x9E3779B97F4A7C15)
+    x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return x ^ (x >> np.uint64(31))
+
+
+class RandomState(NamedTuple):
+    """Per-slot step counter (mixed into the hash, so a repeated observation still gets a fresh action)."""
+
+    step: np.ndarray
+    """(n_slots,) int: steps since the episode start."""
+
+
+class RandomPlanner(_Planner):
+    """Uniformly random horizontal velocity commands in [-1, 1]^2, altitude held, no yaw.
+
+    The action of a slot is a hash of (``seed``, its agent index, its step count, the bits of its ``proprio``),
+    so it is a pure function of the episode: an episode is reproducible from its env seed alone, whatever the
+    number of env copies run in lockstep, and two UAVs never share a random stream.
+
+    :param config: the env configuration
+    :param seed: seed of the hash
+    """
+
+    def __init__(self, config: SwarmConfig | None = None, seed: int = 0) -> None:
+        super().__init__(config)
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f"seed must be an int >= 0, got {seed!r}")
+        self.seed = int(seed)
+
+    def initial_state(self, n_slots: int, n_agents: int = 1) -> RandomState:
+        return RandomState(np.zeros(n_slots, dtype=np.int64))
+
+    def _act(self, local_obs, proprio, link_row, state: RandomState, starts: np.ndarray):
+        n_slots, n_agents = link_row.shape
+        step = np.where(starts, 0, state.step)
+        words = np.ascontiguousarray(proprio, dtype=np.float32).view(np.uint32).astype(np.uint64)  # (n, 8)
+        key = np.full(n_slots, self.seed, dtype=np.uint64)
+        for column in (np.arange(n_slots) % n_agents, step, *words.T):
+            key = _splitmix64(key ^ np.asarray(column).astype(np.uint64))
+        draws = np.stack([_splitmix64(key ^ np.uint64(axis)) for axis in (1, 2)], axis=-1)  # (n, 2)
+        uniform = (draws >> np.uint64(11)).astype(np.float64) * 2.0**-53  # [0, 1), 53 random bits
+        xy, _ = self._positions(proprio)
+        actions = self._command(proprio, xy, xy, np.inf)  # altitude hold and no yaw, no horizontal part
+        actions[:, :2] = 2.0 * uniform - 1.0
+        return actions, RandomState(step + 1)
+
+
+# ---------------------------------------------------------------------------------------------- lawnmower
+class LawnmowerState(NamedTuple):
+    """Per-slot progress along the sweep."""
+
+    route: np.ndarray
+    """(n_slots,) int: which of the four sweep orders of its strip the UAV follows; -1 before its first step."""
+    waypoint: np.ndarray
+    """(n_slots,) int: index of the waypoint the UAV heads to."""
+
+
+class LawnmowerPlanner(_Planner):
+    """Boustrophedon coverage: UAV i sweeps the i-th of N vertical strips in lanes spaced by the footprint width.
+
+    Strip i spans cells ``[floor(i W / N), floor((i + 1) W / N))``; its ``L = ceil(width / (2r + 1))`` lanes are
+    spread evenly from ``x0 + r`` to ``x1 - 1 - r`` (so they cover the strip, at most 2r + 1 cells apart), and each
+    lane runs from cell row ``r`` to row ``H - 1 - r`` (so the footprint covers rows 0 to H - 1). At its first step
+    a UAV picks, of the four orders (left or right lane first, starting at the bottom or the top), the one whose
+    first waypoint is nearest; a waypoint is reached when the UAV is in its cell. The UAV moves at most 2r + 1 cells
+    per step along each axis, so a lane leaves no gap; after the last waypoint it hovers.
+
+    :param config: the env configuration (grid, sensor range, speeds)
+    """
+
+    def __init__(self, config: SwarmConfig | None = None) -> None:
+        super().__init__(config)
+        self._routes: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def initial_state(self, n_slots: int, n_agents: int = 1) -> LawnmowerState:
+        return LawnmowerState(np.full(n_slots, -1, dtype=np.int64), np.zeros(n_slots, dtype=np.int64))
+
+    def routes(self, n_agents: int) -> tuple[np.ndarray, np.ndarray]:
+        """Waypoint cells of every agent and order, (N, 4, L_max, 2) as (ix, iy), padded with the last one; lengths (N, 4)."""
+        if n_agents not in self._routes:
+            self._routes[n_agents] = self._build_routes(n_agents)
+        return self._routes[n_agents]
+
+    def _build_routes(self, n_agents: int) -> tuple[np.ndarray, np.ndarray]:
+        cfg = self.config
+        r, fw, width, height = cfg.sensor_range, cfg.footprint_width, cfg.grid_width, cfg.grid_height
+        y_low, y_high = r, height - 1 - r  # the grid is at least one footprint tall (SwarmConfig checks it)
+        routes = []
+        for i in range(n_agents):
+            x0, x1 = (i * width) // n_agents, ((i + 1) * width) // n_agents
+            strip = x1 - x0
+            if strip == 0:  # more UAVs than columns: this UAV sweeps the column it shares with its left neighbour
+                x0, x1, strip = max(x0 - 1, 0), max(x0, 1), 1
+            n_lanes = -(-strip // fw)
+            if n_lanes == 1:
+                lanes = np.array([(x0 + x1 - 1) // 2])
+            else:  # integer steps of floor((strip - fw) / (L - 1)) or one more: at most fw apart
+                lanes = x0 + r + (np.arange(n_lanes) * (strip - fw)) // (n_lanes - 1)
+            lanes = np.clip(lanes, r, width - 1 - r) if width > 2 * r else lanes
+            orders = []
+            for reverse in (False, True):
+                for top_first in (False, True):
+                    points = []
+                    for k, x in enumerate(lanes[::-1] if reverse else lanes):
+                        up = (k % 2 == 0) != top_first
+                        points += [(x, y_low), (x, y_high)] if up else [(x, y_high), (x, y_low)]
+                    # consecutive duplicates (lanes of one cell when H = 2r + 1) would need two arrivals in one step
+                    dedup = [p for j, p in enumerate(points) if j == 0 or p != points[j - 1]]
+                    orders.append(dedup)
+            routes.append(orders)
+        max_len = max(len(order) for orders in routes for order in orders)
+        table = np.zeros((n_agents, 4, max_len, 2), dtype=np.intp)
+        lengths = np.zeros((n_agents, 4), dtype=np.intp)
+        for i, orders in enumerate(routes):
+            for v, order in enumerate(orders):
+                lengths[i, v] = len(order)
+                table[i, v, : len(order)] = order
+                table[i, v, len(order) :] = order[-1]
+        return table, lengths
+
+    def _act(self, local_obs, proprio, link_row, state: LawnmowerState, starts: np.ndarray):
+        n_slots, n_agents = link_row.shape
+        table, lengths = self.routes(n_agents)
+        agent = np.arange(n_slots) % n_agents
+        xy, cells = self._positions(proprio)
+        route, waypoint = state.route.copy(), state.waypoint.copy()
+
+        choose = starts | (route < 0)
+        if choose.any():  # the order whose first waypoint is nearest (Chebyshev, in cells: diagonal moves are free)
+            first = table[agent[choose], :, 0]  # (k, 4, 2)
+            distance = np.abs(first - cells[choose, None, :]).max(-1)
+            route[choose] = distance.argmin(-1)
+            waypoint[choose] = 0
+        target = table[agent, route, waypoint]  # (n, 2) cells
+        arrived = (target == cells).all(-1) & (waypoint < lengths[agent, route] - 1)
+        waypoint[arrived] += 1
+        target = table[agent, route, waypoint]
+        target_xy = np.stack([self._centres_x[target[:, 0]], self._centres_y[target[:, 1]]], axis=-1)
+        actions = self._command(proprio, xy, target_xy, self.config.footprint_width * self.config.cell_size)
+        return actions, LawnmowerState(route, waypoint)
+
+
+# ---------------------------------------------------------------------------------------------- frontier
+class FrontierState(NamedTuple):
+    """Per-slot onboard state of the frontier explorer; the first three fields are what the UAV broadcasts."""
+
+    known: np.ndarray
+    """(n_slots, H, W) bool: cells this UAV has sensed or received in a peer's map."""
+    cell: np.ndarray
+    """(n_slots, 2) float (ix, iy): the UAV's cell at its last step; NaN before the first step."""
+    target: np.ndarray
+    """(n_slots,) int: flat cell index ``iy * W + ix`` of the frontier cell the UAV heads to; -1 for none."""
+    peer_cell: np.ndarray
+    """(n_slots, N, 2) float: last received cell of each peer; NaN if never received (and for the UAV itself)."""
+    peer_target: np.ndarray
+    """(n_slots, N, 2) float: last received target cell of each peer (a claimed frontier); NaN if none."""
+
+
+class FrontierPlanner(_Planner):
+    """Greedy frontier exploration with explicit sharing of maps, positions and claimed frontiers over the live links.
+
+    Each step, UAV i
+
+    1. merges the map, cell and target of step t-1 of every peer j whose message reached it (``link_row[i, j] = 1``);
+    2. marks the cells of its own ``local_obs`` patch as known;
+    3. replans if its target is known, if it has none, or if a lower-indexed peer has claimed a target within
+       ``spread_radius`` of it (this breaks the tie of two UAVs chasing one frontier side by side): it picks the
+       unknown cell of its own map with the least cost
+
+           cost(c) = max(0, d(c, p_i) - r) + spread_weight * max(0, spread_radius - min_j min(d(c, p_j), d(c, g_j))),
+
+       d the Chebyshev distance in cells (the steps needed under per-axis speed limits), p_j and g_j the last
+       received cell and target of peer j: the first term is the travel until c enters the footprint, the second
+       keeps the UAVs apart (a tiny Euclidean term breaks ties towards the nearest cell);
+    4. flies towards its target at full speed, or hovers when its map has no unknown cell left.
+
+    Without links (``no_comm``) every UAV explores the whole arena alone; with links the shared maps and claims
+    remove most of the redundant sweeps.
+
+    :param config: the env configuration
+    :param spread_radius: cells; frontiers closer than this to a peer or to its target are penalized
+        (default: 4 (2r + 1), four footprints)
+    :param spread_weight: cost per cell of intrusion into a peer's radius
+    """
+
+    def __init__(self, config: SwarmConfig | None = None, spread_radius: float | None = None, spread_weight: float = 2.0):
+        super().__init__(config)
+        cfg = self.config
+        self.spread_radius = 4.0 * cfg.footprint_width if spread_radius is None else float(spread_radius)
+        self.spread_weight = float(spread_weight)
+        if self.spread_radius < 0 or self.spread_weight < 0:
+            raise ValueError(f"spread_radius and spread_weight must be >= 0, got {self.spread_radius}, {self.spread_weight}")
+        r, fw = cfg.sensor_range, cfg.footprint_width
+        dy, dx = np.divmod(np.arange(fw * fw), fw)  # the patch is row-major: rows are y, ascending
+        self._patch_dx, self._patch_dy = dx - r, dy - r
+        iy, ix = np.divmod(np.arange(cfg.n_cells), cfg.grid_width)
+        self._cell_x, self._cell_y = ix, iy  # (H*W,) coordinates of the flat cells
+        self._cell_xy = np.stack([ix, iy], axis=-1)
+
+    def initial_state(self, n_slots: int, n_agents: int = 1) -> FrontierState:
+        cfg = self.config
+        return FrontierState(
+            known=np.zeros((n_slots, cfg.grid_height, cfg.grid_width), dtype=bool),
+            cell=np.full((n_slots, 2), np.nan),
+            target=np.full(n_slots, -1, dtype=np.int64),
+            peer_cell=np.full((n_slots, n_agents, 2), np.nan),
+            peer_target=np.full((n_slots, n_agents, 2), np.nan),
+        )
+
+    def _act(self, local_obs, proprio, link_row, state: FrontierState, starts: np.ndarray):
+        cfg = self.config
+        n_slots, n_agents = link_row.shape
+        n_swarms = n_slots // n_agents
+        if state.peer_cell.shape[1] != n_agents:
+            raise ValueError(f"state is for swarms of {state.peer_cell.shape[1]} agents, link_row for {n_agents}")
+        known = state.known.reshape(n_slots, -1).copy()
+        target = state.target.copy()
+        peer_cell, peer_target = state.peer_cell.copy(), state.peer_target.copy()
+        sent_cell = state.cell.copy()
+        known[starts] = False
+        target[starts] = -1
+        sent_cell[starts] = np.nan
+        peer_cell[starts] = np.nan
+        peer_target[starts] = np.nan
+        sent_target = np.where(target[:, None] >= 0, self._cell_xy[np.maximum(target, 0)], np.nan)  # (n, 2)
+
+        # (1) explicit sharing: i merges j's map, cell and target of step t-1 when j -> i is up at step t
+        links = link_row.reshape(n_swarms, n_agents, n_agents) > 0.5  # [s, i, j]
+        sent_maps = known.reshape(n_swarms, n_agents, -1).astype(np.float32)
+        known |= (np.matmul(links.astype(np.float32), sent_maps) > 0.0).reshape(n_slots, -1)
+        received = links[..., None]  # (S, N, N, 1)
+        peer_cell = np.where(
+            received, sent_cell.reshape(n_swarms, 1, n_agents, 2), peer_cell.reshape(received.shape[:3] + (2,))
+        )
+        peer_target = np.where(
+            received, sent_target.reshape(n_swarms, 1, n_agents, 2), peer_target.reshape(received.shape[:3] + (2,))
+        )
+        peer_cell, peer_target = peer_cell.reshape(n_slots, n_agents, 2), peer_target.reshape(n_slots, n_agents, 2)
+
+        # (2) own sensing: the patch is centred on the UAV's cell; -1 marks cells outside the arena
+        xy, cells = self._positions(proprio)
+        px = cells[:, :1] + self._patch_dx  # (n, F*F)
+        py = cells[:, 1:] + self._patch_dy
+        inside = (local_obs >= 0) & (px >= 0) & (px < cfg.grid_width) & (py >= 0) & (py < cfg.grid_height)
+        rows = np.broadcast_to(np.arange(n_slots)[:, None], px.shape)
+        known[rows[inside], (py * cfg.grid_width + px)[inside]] = True
+
+        # (3) replan where the target is sensed, missing, or claimed nearby by a lower-indexed peer
+        slots = np.arange(n_slots)
+        replan = (target < 0) | known[slots, np.maximum(target, 0)]
+        lower = np.arange(n_agents)[None, :] < (slots % n_agents)[:, None]  # (n, N): peer j has a lower index
+        claim_gap = np.abs(peer_target - self._cell_xy[np.maximum(target, 0)][:, None, :]).max(-1)  # NaN if no claim
+        replan |= (target >= 0) & (lower & (claim_gap < self.spread_radius)).any(-1)
+        if replan.any():
+            target[replan] = self._choose_targets(known[replan], cells[replan], peer_cell[replan], peer_target[replan])
+
+        # (4) fly to the target cell's centre, or hover
+        target_xy = xy.copy()
+        has_target = target >= 0
+        target_xy[has_target] = (self._cell_xy[target[has_target]] + 0.5) * cfg.cell_size
+        actions = self._command(proprio, xy, target_xy, np.inf)
+        new_state = FrontierState(known.reshape(state.known.shape), cells.astype(np.float64), target, peer_cell, peer_target)
+        return actions, new_state
+
+    def _choose_targets(
+        self, known: np.ndarray, cells: np.ndarray, peer_cell: np.ndarray, peer_target: np.ndarray
+    ) -> np.ndarray:
+        """Least-cost unknown cell of each map (k, H*W) for UAVs at ``cells`` (k, 2); -1 where all is known."""
+        dx = np.abs(self._cell_x - cells[:, :1])  # (k, H*W)
+        dy = np.abs(self._cell_y - cells[:, 1:])
+        cost = np.maximum(np.maximum(dx, dy) - self.config.sensor_range, 0).astype(np.float64)
+        cost += 1e-3 * np.sqrt(dx * dx + dy * dy)
+        if self.spread_weight > 0.0 and self.spread_radius > 0.0:
+            nearest = np.full(cost.shape, np.inf)
+            for anchors in (peer_cell, peer_target):  # (k, N, 2), NaN where unknown
+                for j in range(anchors.shape[1]):
+                    known_anchor = ~np.isnan(anchors[:, j, 0])
+                    if known_anchor.any():
+                        ax, ay = anchors[known_anchor, j, :1], anchors[known_anchor, j, 1:]
+                        distance = np.maximum(np.abs(self._cell_x - ax), np.abs(self._cell_y - ay))
+                        nearest[known_anchor] = np.minimum(nearest[known_anchor], distance)
+            cost += self.spread_weight * np.maximum(self.spread_radius - nearest, 0.0)
+        cost[known] = np.inf
+        best = cost.argmin(axis=1)
+        return np.where(np.isinf(cost[np.arange(len(best)), best]), -1, best)

@@ -1,0 +1,178 @@
+"""Non-learned planners: the lawnmower sweep and the frontier explorer with explicit map sharing."""
+
+import math
+
+import numpy as np
+import pytest
+
+from sb3_latentswarm import SwarmConfig
+from sb3_latentswarm.baselines import FrontierPlanner, LawnmowerPlanner, RandomPlanner
+from sb3_latentswarm.envs import SwarmReconEnv
+from sb3_latentswarm.evaluation import EPISODE_COLUMNS, evaluate
+
+
+def lawnmower_step_bound(config: SwarmConfig) -> int:
+    """Steps a lawnmower needs at most without actuation noise.
+
+    A leg to a waypoint takes at most ceil(Chebyshev distance / (v_max dt)) steps (both axes move at once, proportional
+    to the remaining offset), with v_max dt = 1 cell here. Worst strip: L = ceil(widest strip / (2r + 1)) lanes. Legs:
+    the start to the first waypoint (< max(W, H) cells), L lanes of H - 1 - 2r cells, L - 1 lane changes of at most
+    2r + 1 cells. Coverage is complete once the last lane has been flown.
+    """
+    width, height, n, fw = config.grid_width, config.grid_height, config.n_agents, config.footprint_width
+    widest = max(((i + 1) * width) // n - (i * width) // n for i in range(n))
+    lanes = math.ceil(widest / fw)
+    return max(width, height) + lanes * (height - fw) + (lanes - 1) * fw
+
+
+NOISELESS = dict(actuation_noise_std=0.0, max_steps=1000, v_max=1.0)
+
+
+@pytest.mark.parametrize(
+    "config",
+    [
+        SwarmConfig(n_agents=3, grid_width=15, grid_height=15, sensor_range=2, num_obstacles=0, **NOISELESS),
+        SwarmConfig(n_agents=2, grid_width=17, grid_height=13, sensor_range=1, num_obstacles=10, **NOISELESS),
+        SwarmConfig(n_agents=4, grid_width=9, grid_height=20, sensor_range=1, num_obstacles=0, **NOISELESS),
+    ],
+    ids=["15x15-N3-r2", "17x13-N2-r1", "9x20-N4-r1"],
+)
+def test_lawnmower_covers_everything_within_the_bound(config):
+    df = evaluate(LawnmowerPlanner(config), "no_comm", n_episodes=4, seed=0, config=config)
+    assert (df["coverage"] == 100.0).all(), df
+    bound = lawnmower_step_bound(config)
+    assert (df["episode_length"] <= bound).all(), (df["episode_length"].tolist(), bound)
+
+
+def test_lawnmower_in_the_body_frame():
+    """Commands are rotated into the body frame; a diagonal move may slow to v_max / sqrt(2) per axis."""
+    config = SwarmConfig(
+        n_agents=3, grid_width=15, grid_height=15, sensor_range=2, action_frame="body", num_obstacles=0, **NOISELESS
+    )
+    df = evaluate(LawnmowerPlanner(config), "no_comm", n_episodes=4, seed=0, config=config)
+    assert (df["coverage"] == 100.0).all(), df
+    bound = math.ceil(math.sqrt(2) * lawnmower_step_bound(config))
+    assert (df["episode_length"] <= bound).all(), (df["episode_length"].tolist(), bound)
+
+
+@pytest.mark.parametrize(
+    "width, n_agents, sensor_range", [(15, 3, 2), (17, 2, 1), (50, 3, 2), (7, 5, 1), (4, 6, 0), (11, 1, 3)]
+)
+def test_lawnmower_lanes_cover_every_column(width, n_agents, sensor_range):
+    config = SwarmConfig(n_agents=n_agents, grid_width=width, grid_height=12, sensor_range=sensor_range)
+    table, lengths = LawnmowerPlanner(config).routes(n_agents)
+    covered = np.zeros(width, dtype=bool)
+    for agent in range(n_agents):
+        for order in range(4):
+            lanes = np.unique(table[agent, order, : lengths[agent, order], 0])
+            assert (lanes >= min(sensor_range, width - 1)).all() and (lanes <= max(width - 1 - sensor_range, 0)).all()
+            if order == 0:
+                for x in lanes:
+                    covered[max(x - sensor_range, 0) : x + sensor_range + 1] = True
+    assert covered.all()
+
+
+def test_frontier_covers_a_small_map():
+    config = SwarmConfig(n_agents=3, grid_width=15, grid_height=15, max_steps=150)
+    df = evaluate(FrontierPlanner(config), "proposed", n_episodes=4, seed=0, config=config)
+    assert (df["coverage"] >= 95.0).all(), df["coverage"].tolist()
+
+
+def test_frontier_explores_faster_with_shared_maps():
+    """Within a tight horizon, map sharing over full links must beat isolated exploration clearly."""
+    config = SwarmConfig(n_agents=3, grid_width=20, grid_height=20, max_steps=40, v_max=1.0)
+    planner = FrontierPlanner(config)
+    full = evaluate(planner, "full_comm", n_episodes=5, seed=0, config=config)["coverage"]
+    alone = evaluate(planner, "no_comm", n_episodes=5, seed=0, config=config)["coverage"]
+    assert full.mean() >= alone.mean() + 15.0, (full.tolist(), alone.tolist())
+
+
+@pytest.mark.parametrize("link_mode", ["full", "channel", "none"])
+def test_frontier_maps_follow_the_links(link_mode):
+    """Per-UAV maps hold exactly what the UAV sensed or received over a live link."""
+    config = SwarmConfig(
+        n_agents=3, grid_width=12, grid_height=10, sensor_range=1, max_steps=15, link_mode=link_mode, p_fail=0.5
+    )
+    env = SwarmReconEnv(config)
+    planner = FrontierPlanner(config)
+    obs, _ = env.reset(seed=4)
+    state, start = None, np.ones(config.n_agents)
+    sensed_before = np.zeros((config.grid_height, config.grid_width), dtype=bool)
+    for _ in range(config.max_steps):
+        links = np.stack([obs[a]["link_row"] for a in env.possible_agents]) > 0.5
+        previous = None if state is None else state.known.copy()
+        actions, state = planner.predict(obs, state, start)
+        start = np.zeros(config.n_agents)
+        sensed = env.global_map >= 0
+        np.testing.assert_array_equal(state.known.any(axis=0), sensed)  # own patches, placed where the env sensed
+        if previous is not None:
+            for i in range(config.n_agents):
+                received = previous[links[i]].any(axis=0)
+                assert (state.known[i] >= received).all()
+                if link_mode == "full":
+                    assert (state.known[i] >= sensed_before).all()
+                if link_mode == "none":
+                    assert np.isnan(state.peer_cell[i]).all()
+        assert all(np.abs(a).max() <= 1.0 for a in actions.values())
+        sensed_before = sensed
+        obs, _, terminations, truncations, _ = env.step(actions)
+        if any(terminations.values()) or any(truncations.values()):
+            break
+
+
+def test_state_resets_at_episode_start():
+    config = SwarmConfig(n_agents=2, grid_width=10, grid_height=10, max_steps=10)
+    env = SwarmReconEnv(config)
+    obs, _ = env.reset(seed=0)
+    stacked = {key: np.stack([obs[a][key] for a in env.possible_agents]) for key in ("local_obs", "proprio", "link_row")}
+    for planner in (FrontierPlanner(config), LawnmowerPlanner(config), RandomPlanner(config)):
+        actions, state = planner.predict(stacked)
+        assert actions.shape == (2, 4) and (np.abs(actions) <= 1.0).all()
+        _, continued = planner.predict(stacked, state, np.zeros(2))
+        _, restarted = planner.predict(stacked, continued, np.ones(2))
+        fresh_actions, fresh = planner.predict(stacked, None, np.ones(2))
+        for field, fresh_field in zip(restarted, fresh):
+            np.testing.assert_array_equal(field, fresh_field)
+        with pytest.raises(ValueError, match="slots"):
+            planner.predict({key: value[:1] for key, value in stacked.items()}, state)
+
+
+def test_evaluate_runs_the_planners():
+    config = SwarmConfig(n_agents=3, grid_width=12, grid_height=12, max_steps=30)
+    for planner in (LawnmowerPlanner(config), FrontierPlanner(config), RandomPlanner(config)):
+        df = evaluate(planner, "proposed", n_episodes=3, seed=2)  # the planner's own config is the default
+        assert list(df.columns) == list(EPISODE_COLUMNS) and len(df) == 3
+        assert df["map_error"].isna().all() and df["pred_error_dropout"].isna().all()
+        assert df["episode_length"].le(30).all() and df["coverage"].between(0, 100).all()
+        again = evaluate(planner, "proposed", n_episodes=3, seed=2)
+        assert df.equals(again)
+        with pytest.raises(ValueError, match="no_predictor"):
+            evaluate(planner, "no_predictor", n_episodes=1)
+        with pytest.raises(ValueError, match="geometry"):
+            evaluate(planner, n_episodes=1, config=config.replace(grid_width=13))
+
+
+def test_random_planner_is_uniform_and_reproducible():
+    config = SwarmConfig(n_agents=3, grid_width=12, grid_height=12, max_steps=50)
+    rng = np.random.default_rng(0)
+    obs = {
+        "local_obs": rng.integers(-1, 2, (300, config.footprint_width**2)).astype(np.int8),
+        "proprio": rng.random((300, 8)).astype(np.float32),
+        "link_row": np.zeros((300, 3), dtype=np.float32),
+    }
+    actions, _ = RandomPlanner(config, seed=1).predict(obs)
+    horizontal = actions[:, :2].ravel()
+    assert horizontal.min() >= -1.0 and horizontal.max() < 1.0
+    # 600 uniform draws on [-1, 1): mean 0 (std 0.024), and each quarter of the range holds about 150
+    assert abs(horizontal.mean()) < 0.1
+    assert (np.histogram(horizontal, bins=4, range=(-1, 1))[0] > 100).all()
+    assert np.isfinite(actions).all() and (actions[:, 3] == 0).all()
+
+    planner = RandomPlanner(config, seed=1)
+    df = evaluate(planner, "proposed", n_episodes=3, seed=5)
+    pd_equal = df.equals(evaluate(planner, "proposed", n_episodes=3, seed=5, n_envs=1))
+    assert pd_equal  # an episode depends on its env seed only, not on the lockstep copies
+    other = evaluate(RandomPlanner(config, seed=2), "proposed", n_episodes=3, seed=5)
+    assert not df["coverage"].equals(other["coverage"])
+    with pytest.raises(ValueError, match="seed"):
+        RandomPlanner(config, seed=-1)

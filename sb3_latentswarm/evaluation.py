@@ -150,9 +150,10 @@ def _latent_policy(model: Any) -> LatentSwarmPolicy | None:
 
 def _model_config(model: Any) -> SwarmConfig | None:
     """The training configuration of ``model`` if it carries one (its own ``config`` or its env's)."""
-    config = getattr(model, "config", None)
-    if isinstance(config, SwarmConfig):
-        return config
+    for name in ("swarm_config", "config"):  # LatentSwarmPPO saves its training env's config as swarm_config
+        config = getattr(model, name, None)
+        if isinstance(config, SwarmConfig):
+            return config
     env = getattr(model, "env", None)
     if env is None:
         return None

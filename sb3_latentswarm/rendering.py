@@ -7,6 +7,7 @@ around the image at steps where some UAV received nothing) and writes the files 
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import numpy as np
@@ -26,33 +27,28 @@ def run_episode(model, config: SwarmConfig, seed: int = 0, condition: str = "pro
     :return: (frames (T+1, H, W, 3) uint8, positions (T+1, N, 3) in metres, dropouts (T+1,) bool, final infos)
     """
     from sb3_latentswarm.envs import SwarmReconEnv
-    from sb3_latentswarm.evaluation import condition_setup
+    from sb3_latentswarm.evaluation import condition_config, policy_switches
 
-    env_config, switches = condition_setup(condition, config)
-    env = SwarmReconEnv(env_config, render_mode="rgb_array")
+    env = SwarmReconEnv(condition_config(config, condition, config.p_fail), render_mode="rgb_array")
     observations, _ = env.reset(seed=seed)
     rng = np.random.default_rng(seed)
     policy = getattr(model, "policy", None)
-    saved = {name: getattr(policy, name) for name in switches} if policy is not None else {}
+    switches = policy_switches(policy, condition) if policy is not None else contextlib.nullcontext()
     frames, positions, dropouts, state, infos = [], [], [], None, {}
-    try:
-        for name, value in switches.items():
-            if policy is not None:
-                setattr(policy, name, value)
+    with switches:
         while True:
             frames.append(env.render())
             positions.append(env.positions.copy())
-            dropouts.append(bool(np.any(np.stack([obs["link_row"] for obs in observations.values()]).sum(-1) == 0)))
+            link_rows = np.stack([obs["link_row"] for obs in observations.values()])
+            dropouts.append(bool(np.any(link_rows.sum(-1) == 0)))
             if not env.agents:
                 break
             if model is None:
-                actions = {agent: rng.uniform(-1, 1, env.action_space(agent).shape).astype(np.float32) for agent in env.agents}
+                shape = env.action_space(env.agents[0]).shape
+                actions = {agent: rng.uniform(-1, 1, shape).astype(np.float32) for agent in env.agents}
             else:
                 actions, state = model.predict(observations, state=state, deterministic=deterministic)
             observations, _, _, _, infos = env.step(actions)
-    finally:
-        for name, value in saved.items():
-            setattr(policy, name, value)
     return np.stack(frames), np.stack(positions), np.array(dropouts), infos
 
 

@@ -1,0 +1,90 @@
+"""Independent recurrent PPO: sb3-contrib's ``RecurrentPPO`` on the same swarm VecEnv, without messages.
+
+Each UAV is a separate slot with a shared LSTM policy that sees only its own observation (the sensor patch ``local_obs``
+and the proprioceptive state ``proprio``): no links, no global state, no critic privileges. This is the learned
+"every UAV for itself" row of the comparison; the paper does not report it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from sb3_contrib import RecurrentPPO
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
+
+INDEPENDENT_KEYS = ("local_obs", "proprio")
+
+
+class OwnObservationVecEnv(VecEnvWrapper):
+    """Keep only each agent's own observation keys (drops ``link_row``, ``swarm_proprio`` and ``global_map``)."""
+
+    def __init__(self, venv: VecEnv, keys: tuple[str, ...] = INDEPENDENT_KEYS):
+        missing = [key for key in keys if key not in venv.observation_space.spaces]  # type: ignore[attr-defined]
+        if missing:
+            raise ValueError(f"The VecEnv lacks the observation key(s) {missing}")
+        self.keys = keys
+        space = spaces.Dict({key: venv.observation_space[key] for key in keys})  # type: ignore[index]
+        super().__init__(venv, observation_space=space)
+
+    def _filter(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return {key: obs[key] for key in self.keys}
+
+    def reset(self):
+        return self._filter(self.venv.reset())
+
+    def step_wait(self):
+        obs, rewards, dones, infos = self.venv.step_wait()
+        for info in infos:
+            if "terminal_observation" in info:
+                info["terminal_observation"] = self._filter(info["terminal_observation"])
+        return self._filter(obs), rewards, dones, infos
+
+
+class IndependentRecurrentPPO:
+    """A trained ``RecurrentPPO`` with the ``predict`` of the evaluation harness (it drops the other keys itself).
+
+    :param model: a ``RecurrentPPO`` trained on :class:`OwnObservationVecEnv`
+    """
+
+    def __init__(self, model: RecurrentPPO):
+        self.model = model
+
+    def predict(self, observation: dict[str, Any], state=None, episode_start=None, deterministic: bool = True):
+        if observation and all(isinstance(value, dict) for value in observation.values()):  # PettingZoo style
+            agents = list(observation)
+            stacked = {key: np.stack([observation[a][key] for a in agents]) for key in INDEPENDENT_KEYS}
+            actions, state = self.model.predict(stacked, state, episode_start, deterministic)
+            return dict(zip(agents, actions)), state
+        own = {key: observation[key] for key in INDEPENDENT_KEYS}
+        return self.model.predict(own, state, episode_start, deterministic)
+
+
+def train_independent_ppo(
+    vec_env: VecEnv,
+    total_timesteps: int,
+    seed: int = 0,
+    hidden: int = 64,
+    n_steps: int = 128,
+    batch_size: int = 512,
+    **kwargs: Any,
+) -> IndependentRecurrentPPO:
+    """Train sb3-contrib ``RecurrentPPO("MultiInputLstmPolicy")`` on each UAV's own observation.
+
+    :param vec_env: a swarm VecEnv from :func:`sb3_latentswarm.make_vec_env`
+    :param total_timesteps: budget in agent-steps
+    :param hidden: LSTM hidden size and MLP width
+    """
+    model = RecurrentPPO(
+        "MultiInputLstmPolicy",
+        OwnObservationVecEnv(vec_env),
+        n_steps=n_steps,
+        batch_size=batch_size,
+        ent_coef=0.01,
+        seed=seed,
+        policy_kwargs=dict(lstm_hidden_size=hidden, net_arch=[hidden]),
+        **kwargs,
+    )
+    model.learn(total_timesteps=total_timesteps)
+    return IndependentRecurrentPPO(model)

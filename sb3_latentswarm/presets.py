@@ -32,6 +32,8 @@ class Preset:
     """Monte Carlo runs per condition and per p_f value (paper: 10)."""
     p_fails: tuple[float, ...] = (0.0, 0.05, 0.15, 0.3, 0.5)
     """The p_f sweep of Table I (right)."""
+    baseline_timesteps: int = 0
+    """Training budget (agent-steps) of the independent RecurrentPPO baseline; 0 skips it."""
     description: str = ""
 
     @property
@@ -71,6 +73,7 @@ def _paper() -> Preset:
         n_envs=n_envs,
         total_timesteps=updates * n_steps * n_envs * config.n_agents,
         algo_kwargs=_algo_kwargs(600, 25, 4500, 512, 256, learning_rate=paper_learning_rate(updates, 1000)),
+        baseline_timesteps=updates * n_steps * n_envs * config.n_agents,
         description="Sec. IV verbatim: 50x50, N=3, d=512, 40 envs, 1600 updates of 600 steps (115M agent-steps; GPU).",
     )
 
@@ -97,6 +100,7 @@ def _fast() -> Preset:
         n_envs=n_envs,
         total_timesteps=4_320_000,
         algo_kwargs=_algo_kwargs(n_steps, 25, 3000, 64, 128, learning_rate=3e-4),
+        baseline_timesteps=600_000,
         description="25x25 cells of 2 m (the paper's 50 m arena), T=300, d=64, 16 envs, 300 updates (~30 min on 2 cores).",
     )
 
@@ -109,6 +113,7 @@ def _demo() -> Preset:
         n_envs=8,
         total_timesteps=90_000,
         algo_kwargs=_algo_kwargs(40, 10, 160, 32, 64, learning_rate=3e-4),
+        baseline_timesteps=20_000,
         eval_episodes=10,
         description="12x12, N=2, T=40, d=32: learns to beat a random swarm in about a minute.",
     )
@@ -122,6 +127,7 @@ def _smoke() -> Preset:
         n_envs=2,
         total_timesteps=2 * 20 * 2 * 3,
         algo_kwargs=_algo_kwargs(20, 5, 30, 8, 16, n_epochs=1),
+        baseline_timesteps=2 * 3 * 128,
         eval_episodes=2,
         description="Seconds: checks the whole pipeline runs; results mean nothing.",
     )

@@ -1,0 +1,223 @@
+"""Regenerate Table I of the paper (ablations, left; p_f sweep, right) and the comparisons it does not have.
+
+Trains ``LatentSwarmPPO`` on a preset (or loads ``--model``), evaluates the five conditions of Sec. IV and the p_f sweep
+over ``eval_episodes`` Monte Carlo runs each, adds the baselines (random, lawnmower, frontier explorer with explicit
+map sharing, independent RecurrentPPO without messages), and writes into ``--output``:
+
+* ``conditions.csv`` / ``conditions.md`` (ours next to the paper's numbers), ``p_fail_sweep.csv`` / ``.md``,
+  ``baselines.csv`` / ``.md``
+* ``coverage_vs_time.png`` (mean coverage against time per condition) and ``coverage_vs_p_fail.png``
+* ``run.md``: command, commit, machine, wall times, seeds
+
+    python examples/reproduce_table1.py --preset smoke            # seconds, checks the pipeline
+    python examples/reproduce_table1.py --preset fast             # ~45 min on a 2-core CPU
+    python examples/reproduce_table1.py --preset paper --device cuda
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import platform
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import torch as th
+
+from sb3_latentswarm import LatentSwarmPPO
+from sb3_latentswarm.baselines import FrontierPlanner, LawnmowerPlanner, RandomPlanner, train_independent_ppo
+from sb3_latentswarm.envs import make_vec_env
+from sb3_latentswarm.evaluation import (
+    CONDITION_LABELS,
+    evaluate,
+    evaluate_conditions,
+    evaluate_p_fail_sweep,
+    side_by_side,
+    summarize,
+    to_markdown,
+)
+from sb3_latentswarm.presets import PRESETS, get_preset
+
+
+@dataclass
+class Args:
+    preset: str = "fast"
+    """Experiment budget: paper, fast, demo or smoke."""
+    model: str | None = None
+    """Evaluate this saved model instead of training one."""
+    output: str | None = None
+    """Result folder (default docs/results/PRESET)."""
+    seed: int = 0
+    """Seed of training and of the evaluation episodes (episode k uses env seed seed + k)."""
+    episodes: int | None = None
+    """Monte Carlo runs per condition (default: the preset's, 10 for paper and fast)."""
+    no_independent_ppo: bool = False
+    """Skip training the independent RecurrentPPO baseline."""
+    device: str = "auto"
+    threads: int = 1
+    """torch CPU threads."""
+
+
+def parse_args() -> Args:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    for field in dataclasses.fields(Args):
+        flag = "--" + field.name.replace("_", "-")
+        if field.type == "bool":
+            parser.add_argument(flag, action="store_true")
+        elif field.name == "preset":
+            parser.add_argument(flag, default=field.default, choices=sorted(PRESETS))
+        else:
+            kind = int if field.type in ("int", "int | None") else str
+            parser.add_argument(flag, type=kind, default=field.default)
+    return Args(**vars(parser.parse_args()))
+
+
+def git_commit() -> str:
+    try:
+        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True)
+        return out.stdout.strip() + (" (with uncommitted changes)" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def plot_curves(curves: dict, labels: dict, path: Path, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for key, curve in curves.items():
+        mean, std = curve.mean(0), curve.std(0)
+        steps = np.arange(len(mean))
+        ax.plot(steps, mean, label=labels.get(key, str(key)))
+        ax.fill_between(steps, mean - std, mean + std, alpha=0.15)
+    ax.axhline(90, color="grey", lw=0.8, ls="--")
+    ax.set_xlabel("step")
+    ax.set_ylabel("coverage (%)")
+    ax.set_title(title)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_p_fail(sweep: pd.DataFrame, paper: pd.DataFrame, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    grouped = sweep.groupby("p_fail")["coverage"]
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    ax.errorbar(grouped.mean().index, grouped.mean(), yerr=grouped.std(), marker="o", capsize=3, label="ours")
+    ax.errorbar(paper["p_fail"], paper["coverage_mean"], yerr=paper["coverage_std"], marker="s", capsize=3, label="paper")
+    ax.set_xlabel("link failure probability $p_f$")
+    ax.set_ylabel("final coverage (%)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> None:
+    args = parse_args()
+    if args.threads:
+        th.set_num_threads(args.threads)
+    preset = get_preset(args.preset)
+    if args.episodes:
+        preset = dataclasses.replace(preset, eval_episodes=args.episodes)
+    config, episodes, seed = preset.config, preset.eval_episodes, args.seed
+    output = Path(args.output or f"docs/results/{preset.name}")
+    output.mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+
+    start = time.perf_counter()
+    if args.model:
+        model = LatentSwarmPPO.load(args.model, device=args.device)
+        trained = f"loaded from `{args.model}`"
+    else:
+        env = make_vec_env(preset.n_envs, config=config, seed=seed)
+        model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=seed, device=args.device, **preset.algo_kwargs)
+        model.learn(total_timesteps=preset.total_timesteps, progress_bar=sys.stdout.isatty())
+        model.save(output / "model.zip")
+        trained = f"trained here for {preset.total_timesteps:,} agent-steps ({preset.updates} updates), seed {seed}"
+    timings["LatentSwarmPPO training"] = time.perf_counter() - start
+
+    # Table I, left: the five conditions
+    start = time.perf_counter()
+    conditions, condition_curves = evaluate_conditions(
+        model, p_fail=config.p_fail, n_episodes=episodes, seed=seed, config=config, return_curves=True
+    )
+    conditions.to_csv(output / "conditions.csv", index=False)
+    condition_summary = summarize(conditions, by="condition")
+    (output / "conditions.md").write_text(to_markdown(side_by_side(condition_summary)) + "\n")
+    plot_curves(condition_curves, CONDITION_LABELS, output / "coverage_vs_time.png", f"Coverage against time ({preset.name})")
+
+    # Table I, right: the p_f sweep
+    sweep = evaluate_p_fail_sweep(model, p_fails=preset.p_fails, n_episodes=episodes, seed=seed, config=config)
+    sweep.to_csv(output / "p_fail_sweep.csv", index=False)
+    sweep_summary = summarize(sweep, by="p_fail")
+    (output / "p_fail_sweep.md").write_text(to_markdown(side_by_side(sweep_summary)) + "\n")
+    from sb3_latentswarm.evaluation import PAPER_TABLE1_P_FAIL
+
+    plot_p_fail(sweep, PAPER_TABLE1_P_FAIL, output / "coverage_vs_p_fail.png")
+    timings["evaluation of conditions and p_f sweep"] = time.perf_counter() - start
+
+    # Beyond the paper: classical planners and an independent learner, same env, metrics and seeds
+    start = time.perf_counter()
+    rows = []
+    planners = {"random": RandomPlanner(config, seed=seed), "lawnmower": LawnmowerPlanner(config)}
+    for name, planner in planners.items():
+        rows.append(evaluate(planner, "proposed", n_episodes=episodes, seed=seed, config=config).assign(condition=name))
+    frontier = FrontierPlanner(config)
+    for condition in ("proposed", "full_comm", "no_comm"):
+        frame = evaluate(frontier, condition, n_episodes=episodes, seed=seed, config=config)
+        rows.append(frame.assign(condition=f"frontier ({condition})"))
+    if preset.baseline_timesteps and not args.no_independent_ppo:
+        independent_env = make_vec_env(preset.n_envs, config=config, seed=seed)
+        independent = train_independent_ppo(independent_env, preset.baseline_timesteps, seed)
+        frame = evaluate(independent, "proposed", n_episodes=episodes, seed=seed, config=config)
+        rows.append(frame.assign(condition=f"independent RecurrentPPO ({preset.baseline_timesteps:,} steps)"))
+    rows.append(conditions[conditions["condition"] == "proposed"].assign(condition="LatentSwarmPPO (proposed)"))
+    baselines = pd.concat(rows, ignore_index=True)
+    baselines.to_csv(output / "baselines.csv", index=False)
+    baseline_summary = summarize(baselines, by="condition")
+    (output / "baselines.md").write_text(to_markdown(baseline_summary) + "\n")
+    timings["baselines"] = time.perf_counter() - start
+
+    command = "python " + " ".join(sys.argv)
+    run = [
+        f"# Table I run: preset `{preset.name}`\n",
+        f"- command: `{command}`",
+        f"- commit: {git_commit()}",
+        f"- machine: {platform.machine()}, {platform.system()}, {th.get_num_threads()} torch thread(s), "
+        f"device {model.device}, Python {platform.python_version()}, torch {th.__version__}",
+        f"- model: {trained}",
+        f"- preset: {preset.description}",
+        f"- evaluation: {episodes} episodes per row, env seeds {seed}..{seed + episodes - 1}, deterministic actions, "
+        f"p_f = {config.p_fail} unless swept",
+        *(f"- wall time, {name}: {seconds:.0f} s" for name, seconds in timings.items()),
+        "",
+        "## Conditions (Table I, left)\n",
+        to_markdown(side_by_side(condition_summary)),
+        "",
+        "## p_f sweep (Table I, right)\n",
+        to_markdown(side_by_side(sweep_summary)),
+        "",
+        "## Baselines (not in the paper)\n",
+        to_markdown(baseline_summary),
+        "",
+    ]
+    (output / "run.md").write_text("\n".join(run))
+    print("\n".join(run))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,79 @@
+"""The example scripts and the ``sb3-latentswarm`` command, run end to end with the smoke preset."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from sb3_latentswarm.cli import main, parse_overrides
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_script(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=300)
+
+
+def test_reproduce_table1_smoke(tmp_path):
+    result = run_script("examples/reproduce_table1.py", "--preset", "smoke", "--output", str(tmp_path))
+    assert result.returncode == 0, result.stderr
+    conditions = pd.read_csv(tmp_path / "conditions.csv")
+    assert set(conditions["condition"]) == {"proposed", "full_comm", "no_comm", "no_predictor", "no_memory"}
+    sweep = pd.read_csv(tmp_path / "p_fail_sweep.csv")
+    assert sorted(sweep["p_fail"].unique()) == [0.0, 0.05, 0.15, 0.3, 0.5]
+    tables = ("conditions.md", "p_fail_sweep.md", "baselines.md", "run.md")
+    for name in (*tables, "coverage_vs_time.png", "coverage_vs_p_fail.png"):
+        assert (tmp_path / name).stat().st_size > 0, name
+    assert "(paper)" in (tmp_path / "conditions.md").read_text()
+
+
+def test_train_example_smoke(tmp_path):
+    result = run_script("examples/train.py", "--preset", "smoke", "--output", str(tmp_path))
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "model.zip").exists()
+    assert any((tmp_path / "tb").iterdir())  # TensorBoard events were written
+    assert "Coverage (%)" in result.stdout
+
+
+def test_cli_train_evaluate_render(tmp_path, capsys):
+    assert main(["train", "--preset", "smoke", "--output", str(tmp_path), "--no-progress", "--evaluate"]) == 0
+    out = capsys.readouterr().out
+    assert "Conditions" in out and "lawnmower" in out and "no_predictor" in out
+    model = str(tmp_path / "model.zip")
+    assert main(["evaluate", "--preset", "smoke", "--model", model, "--p-fail-sweep", "--no-baselines"]) == 0
+    assert (tmp_path / "p_fail_sweep.csv").exists()
+    gif = tmp_path / "episode.gif"
+    assert main(["render", "--preset", "smoke", "--model", model, "--output", str(gif)]) == 0
+    assert gif.stat().st_size > 0 and (tmp_path / "episode_trajectories.png").exists()
+
+
+def test_cli_overrides_are_typed_and_checked():
+    overrides = parse_overrides(["p_fail=0.5", "n_agents=4", "link_mode=full"])
+    assert overrides == {"p_fail": 0.5, "n_agents": 4, "link_mode": "full"}
+    with pytest.raises(ValueError, match="unknown SwarmConfig field"):
+        parse_overrides(["p_failure=0.5"])
+    with pytest.raises(ValueError, match="FIELD=VALUE"):
+        parse_overrides(["p_fail"])
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["train", "--preset", "smoke", "--set", "p_fail=1.5"], "p_fail must be in"),
+        (["evaluate", "--model", "does/not/exist.zip"], "no file at"),
+        (["train", "--preset", "smoke", "--set", "grid_width=abc"], "cannot read"),
+    ],
+)
+def test_cli_bad_arguments_exit_with_a_clear_message(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_cli_unknown_preset_is_rejected(capsys):
+    with pytest.raises(SystemExit):
+        main(["train", "--preset", "huge"])
+    assert "invalid choice" in capsys.readouterr().err

@@ -14,7 +14,7 @@ $(VENV)/.installed: setup.cfg pyproject.toml constraints-cpu.txt
 	touch $@
 
 demo: $(VENV)/.installed
-	$(VENV)/bin/sb3-latentswarm train --preset smoke --evaluate
+	$(VENV)/bin/sb3-latentswarm train --preset demo --evaluate
 
 test: $(VENV)/.installed
 	$(PY) -m pytest -q tests

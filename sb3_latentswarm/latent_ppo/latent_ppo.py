@@ -21,6 +21,7 @@ from sb3_contrib import RecurrentPPO
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import FloatSchedule, explained_variance, obs_as_tensor, safe_mean
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
@@ -30,8 +31,12 @@ from sb3_latentswarm.common.schedules import paper_learning_rate
 from sb3_latentswarm.common.type_aliases import LatentState
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy, SequenceEvaluation, check_observation_space
+from sb3_latentswarm.version import __version__
 
 SelfLatentSwarmPPO = TypeVar("SelfLatentSwarmPPO", bound="LatentSwarmPPO")
+
+SAVE_FORMAT = 1
+"""Version of the saved-model layout; bumped when a change would make older files load wrongly."""
 
 PAPER_LEARNING_RATE = paper_learning_rate()
 """1e-4 for the first 1000 of 1600 updates, 1e-5 after (Sec. IV)."""
@@ -57,6 +62,19 @@ def auxiliary_losses(evaluation: SequenceEvaluation, global_map: th.Tensor) -> t
     comm = evaluation.has_message.float()
     pred_loss = (pred_error * comm).sum() / comm.sum().clamp(min=1.0)
     return map_loss, pred_loss
+
+
+def check_save_format(data: dict[str, Any] | None, path: Any) -> None:
+    """Raise a clear ``ValueError`` when ``data`` (a saved model's attributes) is not a loadable LatentSwarmPPO file."""
+    if not data or "save_format" not in data:
+        raise ValueError(f"{path} was not saved by LatentSwarmPPO (no save_format); load it with the class that saved it")
+    saved_format, saved_by = data["save_format"], data.get("saved_by_version", "unknown")
+    if saved_format != SAVE_FORMAT:
+        newer = "a newer" if saved_format > SAVE_FORMAT else "an older"
+        raise ValueError(
+            f"{path} was saved by {newer} sb3-latentswarm ({saved_by}, save format {saved_format}); this is "
+            f"sb3-latentswarm {__version__} (save format {SAVE_FORMAT}). Install sb3-latentswarm=={saved_by} to load it."
+        )
 
 
 def _env_config(env: VecEnv) -> SwarmConfig | None:
@@ -165,6 +183,8 @@ class LatentSwarmPPO(RecurrentPPO):
         self.pred_coef = pred_coef
         self.chunk_length = chunk_length
         self.n_agents: int | None = None
+        self.save_format = SAVE_FORMAT
+        self.saved_by_version = __version__
         self.swarm_config: SwarmConfig | None = None
         """The env config of training (saved with the model; the evaluation's default)."""
         if self.env is not None:
@@ -273,7 +293,12 @@ class LatentSwarmPPO(RecurrentPPO):
         force_reset: bool = True,
         **kwargs,
     ) -> LatentSwarmPPO:
-        """Load a model; ``env`` may have another number of agents or env copies than the training env."""
+        """Load a model; ``env`` may have another number of agents or env copies than the training env.
+
+        Files of another save format fail with a ``ValueError`` naming both versions instead of loading wrongly.
+        """
+        data, _, _ = load_from_zip_file(path, device="cpu", custom_objects=custom_objects, load_data=True)
+        check_save_format(data, path)
         model = super().load(
             path, env=None, device=device, custom_objects=custom_objects, print_system_info=print_system_info, **kwargs
         )

@@ -93,7 +93,7 @@ class SwarmConfig:
     p_fail: float = 0.3
     """p_f, probability of an abrupt link failure, xi ~ Bernoulli(1 - p_f) per directed link and step (paper: 0.3)."""
     rician_k: float = 5.0
-    """K, the Rician factor of |h|^2 with E|h|^2 = 1 (paper: 5)."""
+    """K, the Rician factor of ``|h|^2`` with ``E|h|^2 = 1`` (paper: 5)."""
     rician_k_altitude_slope: float = 0.0
     """*Open, off by default.* K grows with the pair's mean altitude z: K(z) = max(0, K + slope * (z - min_altitude))."""
     atmospheric_loss: float = 0.9
@@ -130,7 +130,7 @@ class SwarmConfig:
 
     @property
     def n_cells(self) -> int:
-        """Number of cells |X| of the grid."""
+        """Number of cells ``|X|`` of the grid."""
         return self.grid_width * self.grid_height
 
     @property

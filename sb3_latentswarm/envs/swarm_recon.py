@@ -208,7 +208,7 @@ class SwarmReconEnv(ParallelEnv):
 
     @property
     def coverage(self) -> float:
-        """|C_t| / |X|, the share of cells observed at least once."""
+        """``|C_t| / |X|``, the share of cells observed at least once."""
         return self._n_covered / self._n_cells
 
     @property
@@ -386,7 +386,7 @@ class SwarmReconEnv(ParallelEnv):
     def swarm_summary(self) -> dict[str, Any]:
         """Episode statistics so far (the ``swarm_summary`` info of the last step, which adds ``truncated``).
 
-        Keys: ``coverage`` (|C| / |X|), ``collisions`` (pairs closer than ``d_safe``, summed over the steps),
+        Keys: ``coverage`` (``|C| / |X|``), ``collisions`` (pairs closer than ``d_safe``, summed over the steps),
         ``steps_to_90`` (first step t with coverage >= 0.9, ``None`` if never), ``length`` (steps), ``episode_return``
         (sum of the shared reward), ``link_up_rate`` (mean over agents and link draws of the share of live in-links),
         ``dropout_rate`` (share of agent-draws with no live in-link). The link statistics count every link draw of

@@ -1,0 +1,194 @@
+"""Sphinx configuration of the sb3-latentswarm documentation (Sphinx + MyST, as Stable-Baselines3).
+
+Build (the CI check): ``sphinx-build -W --keep-going -b html docs docs/_build/html``. The build is offline: no
+intersphinx inventories are fetched, and the package is imported from the installed (editable) checkout.
+"""
+
+from __future__ import annotations
+
+import inspect
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, os.path.abspath(".."))
+
+from sb3_latentswarm.version import __version__  # noqa: E402
+
+project = "sb3-latentswarm"
+author = "sb3-latentswarm contributors"
+copyright = "2026, sb3-latentswarm contributors"
+version = __version__
+release = __version__
+
+extensions = [
+    "sphinx.ext.autodoc",
+    "sphinx.ext.mathjax",
+    "myst_parser",
+]
+
+source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
+root_doc = "index"
+# docs/results/ is filled by examples/reproduce_table1.py; its files are pulled into results.md (see below), not
+# built as pages of their own.
+exclude_patterns = ["_build", "Thumbs.db", ".DS_Store", "results", "results/**"]
+
+myst_enable_extensions = ["dollarmath", "colon_fence", "deflist"]
+myst_heading_anchors = 3
+
+autodoc_member_order = "bysource"
+autodoc_typehints = "description"
+autodoc_typehints_description_target = "documented_params"
+autodoc_default_options = {"show-inheritance": True, "exclude-members": "__new__"}
+autodoc_class_signature = "separated"
+
+html_theme = "sphinx_rtd_theme"
+html_title = f"sb3-latentswarm {__version__}"
+html_theme_options = {"navigation_depth": 3}
+html_static_path: list[str] = []
+
+
+# ---------------------------------------------------------------------------------------------- results
+DOCS_DIR = Path(__file__).resolve().parent
+RESULTS_DIR = DOCS_DIR / "results"
+IMAGE_SUFFIXES = (".png", ".svg", ".gif", ".jpg")
+DATA_SUFFIXES = (".csv", ".json", ".txt", ".pdf")
+
+
+def _include(path: Path, heading_offset: int) -> list[str]:
+    rel = path.relative_to(DOCS_DIR).as_posix()
+    return [f"```{{include}} {rel}", f":heading-offset: {heading_offset}", ":relative-images:", "```", ""]
+
+
+def _results_folder(folder: Path) -> list[str]:
+    """MyST for one results folder (``docs/results/`` itself or one ``docs/results/<run>/``).
+
+    A folder with a ``run.md`` (what ``examples/reproduce_table1.py`` writes) is shown through that report, whose
+    ``#`` heading becomes a level-3 heading; otherwise each markdown file is included under a heading of its own.
+    Images are shown and data files linked for download; anything else (``model.zip``) is left out.
+    """
+    files = sorted(p for p in folder.iterdir() if p.is_file())
+    markdown = [p for p in files if p.suffix.lower() == ".md" and p.name.lower() != "readme.md"]
+    images = [p for p in files if p.suffix.lower() in IMAGE_SUFFIXES]
+    data = [p for p in files if p.suffix.lower() in DATA_SUFFIXES]
+    if not (markdown or images or data):
+        return []
+    rel = folder.relative_to(DOCS_DIR).as_posix()
+    report = folder / "run.md"
+    if report in markdown:
+        parts = _include(report, heading_offset=2)
+    else:
+        parts = [f"### `{rel}/`", ""]
+        for path in markdown:
+            parts += [f"#### {path.stem}", ""] + _include(path, heading_offset=3)
+    if images:
+        parts += ["#### Plots", ""]
+        for path in images:
+            parts += [f"```{{image}} {rel}/{path.name}", f":alt: {path.stem}", "```", ""]
+    if data:
+        parts += ["#### Data", ""]
+        parts += [f"- {{download}}`{path.name} <{rel}/{path.name}>`" for path in data] + [""]
+    return parts
+
+
+def results_listing() -> str:
+    """MyST text appended to ``results.md``: the contents of ``docs/results/`` and of each of its sub-folders."""
+    if not RESULTS_DIR.is_dir():
+        return "\n*No results have been generated yet: `docs/results/` does not exist.*\n"
+    folders = [RESULTS_DIR] + sorted(p for p in RESULTS_DIR.iterdir() if p.is_dir() and not p.name.startswith((".", "_")))
+    parts: list[str] = []
+    for folder in folders:
+        parts += _results_folder(folder)
+    if not parts:
+        return "\n*No results have been generated yet: `docs/results/` holds no tables or plots.*\n"
+    return "\n" + "\n".join(parts)
+
+
+def _append_results(app, docname: str, source: list[str]) -> None:
+    if docname == "results":
+        source[0] += results_listing()
+
+
+# ---------------------------------------------------------------------------------------------- presets
+PRESETS_MARKER = "<!-- presets-table -->"
+
+
+def _learning_rate_text(learning_rate) -> str:
+    from sb3_latentswarm.common.schedules import StepSchedule
+
+    def number(value: float) -> str:
+        return np.format_float_scientific(value, trim="-", exp_digits=1)
+
+    if isinstance(learning_rate, StepSchedule):
+        return (
+            f"{number(learning_rate.initial_value)}, then {number(learning_rate.final_value)} after "
+            f"{learning_rate.switch_fraction:.1%} of training"
+        )
+    return f"{number(learning_rate)}, constant"
+
+
+def presets_table() -> str:
+    """The table of ``sb3_latentswarm.presets.PRESETS``, generated from the code so that it cannot drift."""
+    from sb3_latentswarm.latent_ppo import LatentSwarmPolicy, LatentSwarmPPO
+    from sb3_latentswarm.presets import PRESETS
+
+    algo_defaults = {name: p.default for name, p in inspect.signature(LatentSwarmPPO.__init__).parameters.items()}
+    policy_defaults = {name: p.default for name, p in inspect.signature(LatentSwarmPolicy.__init__).parameters.items()}
+    presets = list(PRESETS.values())
+
+    def algo(preset, *keys: str) -> str:
+        return ", ".join(str(preset.algo_kwargs.get(key, algo_defaults[key])) for key in keys)
+
+    def policy(preset, *keys: str) -> str:
+        kwargs = preset.algo_kwargs.get("policy_kwargs", {})
+        return ", ".join(str(kwargs.get(key, policy_defaults[key])) for key in keys)
+
+    def horizon(preset) -> str:
+        c = preset.config
+        budget = f"{c.initial_energy / c.energy_decay:g}" if c.energy_decay > 0 else "never"
+        return f"{c.max_steps}; {budget}"
+
+    def motion(preset) -> str:
+        c = preset.config
+        return f"{c.v_max:g} m/s, {c.vz_max:g} m/s, {c.d_safe:g} m"
+
+    rows = {
+        "grid (cells), cell size": lambda p: f"{p.config.grid_width} x {p.config.grid_height}, {p.config.cell_size:g} m",
+        "$N$ (`n_agents`)": lambda p: f"{p.config.n_agents}",
+        "$T$ (`max_steps`); $b_0 / \\kappa$": horizon,
+        "`num_obstacles`": lambda p: f"{p.config.num_obstacles}",
+        "`v_max`, `vz_max`, `d_safe`": motion,
+        "swarms (`n_envs`)": lambda p: f"{p.n_envs}",
+        "`n_steps`, `chunk_length`, `batch_size`, `n_epochs`": lambda p: algo(
+            p, "n_steps", "chunk_length", "batch_size", "n_epochs"
+        ),
+        "`latent_dim`": lambda p: policy(p, "latent_dim"),
+        "predictor, decoder, critic, actor widths": lambda p: policy(
+            p, "predictor_hidden", "decoder_hidden", "critic_hidden", "actor_hidden"
+        ),
+        "learning rate": lambda p: _learning_rate_text(p.algo_kwargs.get("learning_rate", algo_defaults["learning_rate"])),
+        "training agent-steps (updates)": lambda p: f"{p.total_timesteps:,} ({p.updates:,})",
+        "evaluation episodes per condition": lambda p: f"{p.eval_episodes}",
+    }
+    lines = ["| | " + " | ".join(f"`{p.name}`" for p in presets) + " |", "|---|" + "---|" * len(presets)]
+    lines += [f"| {label} | " + " | ".join(cell(p) for p in presets) + " |" for label, cell in rows.items()]
+    return "\n".join(lines)
+
+
+def _insert_presets_table(app, docname: str, source: list[str]) -> None:
+    if PRESETS_MARKER in source[0]:
+        source[0] = source[0].replace(PRESETS_MARKER, presets_table())
+
+
+def _always_reread(app, env, added, changed, removed) -> list[str]:
+    # Their content comes from outside docs/ (the code, docs/results/): re-read them on every incremental build too.
+    return ["concepts", "results"]
+
+
+def setup(app):
+    app.connect("source-read", _append_results)
+    app.connect("source-read", _insert_presets_table)
+    app.connect("env-get-outdated", _always_reread)
+    return {"parallel_read_safe": True}

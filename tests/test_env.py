@@ -590,3 +590,10 @@ def test_matplotlib_is_not_imported_by_the_env():
         "assert 'matplotlib' not in sys.modules, 'matplotlib imported'\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_actor_keys_agree_with_the_policy_side():
+    from sb3_latentswarm.common.observations import ACTOR_KEYS
+    from sb3_latentswarm.envs.swarm_recon import ACTOR_OBS_KEYS
+
+    assert ACTOR_KEYS == ACTOR_OBS_KEYS

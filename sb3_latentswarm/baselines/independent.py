@@ -14,6 +14,8 @@ from gymnasium import spaces
 from sb3_contrib import RecurrentPPO
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
+from sb3_latentswarm.common.observations import as_vec_observation
+
 INDEPENDENT_KEYS = ("local_obs", "proprio")
 
 
@@ -52,14 +54,9 @@ class IndependentRecurrentPPO:
         self.model = model
 
     def predict(self, observation: dict[str, Any], state=None, episode_start=None, deterministic: bool = True):
-        if observation and all(isinstance(value, dict) for value in observation.values()):  # PettingZoo style
-            agents = list(observation)
-            stacked = {key: np.stack([observation[a][key] for a in agents]) for key in INDEPENDENT_KEYS}
-            actions, state = self.model.predict(stacked, state, episode_start, deterministic)
-            return dict(zip(agents, actions)), state
-        own = {key: observation[key] for key in INDEPENDENT_KEYS}
-        return self.model.predict(own, state, episode_start, deterministic)
-
+        own, agent_names = as_vec_observation(observation, INDEPENDENT_KEYS, "IndependentRecurrentPPO")
+        actions, state = self.model.predict(own, state, episode_start, deterministic)
+        return (dict(zip(agent_names, actions)) if agent_names is not None else actions), state
 
 def train_independent_ppo(
     vec_env: VecEnv,

@@ -19,18 +19,19 @@ Positions are read from ``proprio``: ``x = proprio[0] * grid_width * cell_size``
 
 from __future__ import annotations
 
+import abc
 from typing import Any, NamedTuple
 
 import numpy as np
 
+from sb3_latentswarm.common.observations import ACTOR_KEYS, as_vec_observation
 from sb3_latentswarm.config import SwarmConfig
 
 __all__ = ["FrontierPlanner", "FrontierState", "LawnmowerPlanner", "LawnmowerState", "RandomPlanner", "RandomState"]
 
-ACTOR_KEYS = ("local_obs", "proprio", "link_row")
 
 
-class _Planner:
+class _Planner(abc.ABC):
     """Shared parts: observation handling, positions, and the velocity command towards a waypoint."""
 
     def __init__(self, config: SwarmConfig | None = None) -> None:
@@ -45,9 +46,9 @@ class _Planner:
         self._centres_y = (np.arange(config.grid_height) + 0.5) * config.cell_size
 
     # ------------------------------------------------------------------ interface of a model
+    @abc.abstractmethod
     def initial_state(self, n_slots: int, n_agents: int) -> Any:
         """The state before the first step of an episode, for ``n_slots`` UAVs in swarms of ``n_agents``."""
-        raise NotImplementedError
 
     def predict(
         self,
@@ -66,13 +67,7 @@ class _Planner:
         :param deterministic: ignored (every planner's action is a deterministic function of its inputs)
         :return: actions in [-1, 1] of shape (n_slots, 4) and the new state
         """
-        agent_names = None
-        if observation and all(isinstance(value, dict) for value in observation.values()):
-            agent_names = list(observation.keys())
-            observation = {key: np.stack([observation[a][key] for a in agent_names]) for key in ACTOR_KEYS}
-        missing = [key for key in ACTOR_KEYS if key not in observation]
-        if missing:
-            raise ValueError(f"observation lacks the key(s) {missing}; {type(self).__name__} acts on {list(ACTOR_KEYS)}")
+        observation, agent_names = as_vec_observation(observation, ACTOR_KEYS, type(self).__name__)
         local_obs = np.asarray(observation["local_obs"])
         proprio = np.asarray(observation["proprio"], dtype=np.float64)
         link_row = np.asarray(observation["link_row"])
@@ -95,8 +90,9 @@ class _Planner:
             return dict(zip(agent_names, actions)), state
         return actions, state
 
+    @abc.abstractmethod
     def _act(self, local_obs: np.ndarray, proprio: np.ndarray, link_row: np.ndarray, state: Any, starts: np.ndarray):
-        raise NotImplementedError
+        """Actions in [-1, 1] for every slot and the new state (``starts``: slots whose episode begins)."""
 
     # ------------------------------------------------------------------ helpers
     def _positions(self, proprio: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -29,9 +29,9 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 
+from sb3_latentswarm.common.observations import ACTOR_KEYS, as_vec_observation
 from sb3_latentswarm.common.type_aliases import LatentState
 
-ACTOR_KEYS = ("local_obs", "proprio", "link_row")
 CRITIC_KEYS = ("swarm_proprio", "global_map")
 REQUIRED_KEYS = ACTOR_KEYS + CRITIC_KEYS
 POSITION_DIMS = 3
@@ -386,15 +386,9 @@ class LatentSwarmPolicy(BasePolicy):
         :param deterministic: use the mean action
         :return: actions (clipped to the action space) and the new state, a :class:`LatentState` of numpy arrays
         """
-        agent_names = None
-        if observation and all(isinstance(value, dict) for value in observation.values()):
-            agent_names = list(observation.keys())
-            observation = {key: np.stack([observation[a][key] for a in agent_names]) for key in ACTOR_KEYS}
-        missing = [key for key in ACTOR_KEYS if key not in observation]
-        if missing:
-            raise ValueError(f"observation lacks the key(s) {missing}; LatentSwarmPolicy acts on {list(ACTOR_KEYS)}")
+        observation, agent_names = as_vec_observation(observation, ACTOR_KEYS, "LatentSwarmPolicy")
         self.set_training_mode(False)
-        obs_tensor = {key: th.as_tensor(np.asarray(observation[key]), device=self.device) for key in ACTOR_KEYS}
+        obs_tensor = {key: th.as_tensor(observation[key], device=self.device) for key in ACTOR_KEYS}
         if obs_tensor["local_obs"].dim() == len(self.observation_space["local_obs"].shape):
             raise ValueError("predict needs a batch of whole swarms (leading slot dimension), got a single observation")
         n_slots = obs_tensor["local_obs"].shape[0]

@@ -137,18 +137,19 @@ def main() -> None:
     output = Path(args.output or f"docs/results/{preset.name}")
     output.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
+    commit = git_commit()  # the code that runs, before anything is written
 
     start = time.perf_counter()
     if args.model:
         model = LatentSwarmPPO.load(args.model, device=args.device)
-        trained = f"loaded from `{args.model}`"
+        trained = f"loaded from `{args.model}` (trained elsewhere; see the notes next to this file)"
     else:
         env = make_vec_env(preset.n_envs, config=config, seed=seed)
         model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=seed, device=args.device, **preset.algo_kwargs)
         model.learn(total_timesteps=preset.total_timesteps, progress_bar=sys.stdout.isatty())
         model.save(output / "model.zip")
         trained = f"trained here for {preset.total_timesteps:,} agent-steps ({preset.updates} updates), seed {seed}"
-    timings["LatentSwarmPPO training"] = time.perf_counter() - start
+    timings["LatentSwarmPPO loading" if args.model else "LatentSwarmPPO training"] = time.perf_counter() - start
 
     # Table I, left: the five conditions
     start = time.perf_counter()
@@ -196,7 +197,7 @@ def main() -> None:
     run = [
         f"# Table I run: preset `{preset.name}`\n",
         f"- command: `{command}`",
-        f"- commit: {git_commit()}",
+        f"- commit: {commit}",
         f"- machine: {platform.machine()}, {platform.system()}, {th.get_num_threads()} torch thread(s), "
         f"device {model.device}, Python {platform.python_version()}, torch {th.__version__}",
         f"- model: {trained}",

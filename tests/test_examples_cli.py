@@ -77,3 +77,19 @@ def test_cli_unknown_preset_is_rejected(capsys):
     with pytest.raises(SystemExit):
         main(["train", "--preset", "huge"])
     assert "invalid choice" in capsys.readouterr().err
+
+
+def test_continue_training_example_smoke(tmp_path):
+    first = tmp_path / "first"
+    assert main(["train", "--preset", "smoke", "--output", str(first), "--no-progress"]) == 0
+    result = run_script(
+        "examples/continue_training.py",
+        "--model",
+        str(first / "model.zip"),
+        "--preset",
+        "smoke",
+        "--output",
+        str(tmp_path / "more" / "model.zip"),
+    )
+    assert result.returncode == 0, result.stderr
+    assert "Continued" in result.stdout and (tmp_path / "more" / "progress.csv").exists()

@@ -9,6 +9,7 @@ from stable_baselines3.common.vec_env import VecMonitor
 
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.envs import OBS_KEYS, SwarmVecEnv, make_vec_env
+from sb3_latentswarm.envs.vec_env import SerialOnlyError
 
 SMALL = SwarmConfig(n_agents=2, grid_width=12, grid_height=12, num_obstacles=8)
 # Episodes of exactly 10 steps (b_0 / kappa = 1 / 0.1).
@@ -114,7 +115,7 @@ def test_multiprocess_matches_serial():
             obs_p, rew_p, done_p, _ = parallel.step(actions)
             assert_obs_equal(obs_s, obs_p)
             np.testing.assert_array_equal(rew_s, rew_p)
-        with pytest.raises(NotImplementedError, match="serial"):
+        with pytest.raises(SerialOnlyError, match="serial"):
             parallel.get_attr("positions")
     finally:
         parallel.close()

@@ -49,6 +49,11 @@ def _check_seed(seed: Any, name: str = "seed") -> int | None:
     return int(seed)
 
 
+class SerialOnlyError(RuntimeError):
+    """Raised by per-copy access (``swarm_envs``, ``get_attr``, ``env_method``) when the copies live in other
+    processes (``num_cpus > 1``)."""
+
+
 class SwarmVecEnv(VecEnvWrapper):
     """Seeds the swarm copies of a SuperSuit SB3 vec env and exposes the swarm layout.
 
@@ -135,12 +140,12 @@ class SwarmVecEnv(VecEnvWrapper):
     def swarm_envs(self) -> list[SwarmReconEnv]:
         """The :class:`SwarmReconEnv` copies in copy order (serial vec envs only, ``num_cpus <= 1``).
 
-        :raises NotImplementedError: with ``num_cpus > 1`` (the copies live in other processes).
+        :raises SerialOnlyError: with ``num_cpus > 1`` (the copies live in other processes).
         """
         inner = self.venv.venv
         if not isinstance(inner, ConcatVecEnv):
             # Not an AttributeError: inside a property it would fall through to VecEnvWrapper.__getattr__.
-            raise NotImplementedError("swarm_envs, get_attr and env_method need a serial vec env (num_cpus <= 1)")
+            raise SerialOnlyError("swarm_envs, get_attr and env_method need a serial vec env (num_cpus <= 1)")
         return [vec_env.par_env for vec_env in inner.vec_envs]
 
     def _slot_envs(self, indices: VecEnvIndices) -> list[SwarmReconEnv]:
@@ -167,7 +172,7 @@ class SwarmVecEnv(VecEnvWrapper):
             return True
         try:
             return hasattr(self.swarm_envs[0], attr_name)
-        except NotImplementedError:
+        except SerialOnlyError:
             return False
 
 

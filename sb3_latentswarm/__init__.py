@@ -8,6 +8,8 @@ and ``LatentSwarmPPO``, a subclass of sb3-contrib's ``RecurrentPPO``.
 from sb3_latentswarm.channel import A2AChannel, link_probability
 from sb3_latentswarm.common.schedules import StepSchedule, paper_learning_rate
 from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.envs import SwarmReconEnv, make_vec_env, parallel_env
+from sb3_latentswarm.evaluation import evaluate, summarize
 from sb3_latentswarm.latent_ppo import LatentSwarmPolicy, LatentSwarmPPO
 from sb3_latentswarm.version import __version__
 
@@ -17,20 +19,13 @@ __all__ = [
     "LatentSwarmPolicy",
     "StepSchedule",
     "SwarmConfig",
+    "SwarmReconEnv",
     "__version__",
+    "evaluate",
     "link_probability",
+    "make_vec_env",
     "paper_learning_rate",
+    "parallel_env",
+    "summarize",
 ]
 
-
-def __getattr__(name: str):
-    # the env stack (PettingZoo, SuperSuit) is imported on first use, so `import sb3_latentswarm` stays light
-    if name in ("make_vec_env", "SwarmReconEnv", "parallel_env"):
-        from sb3_latentswarm import envs
-
-        return getattr(envs, name)
-    if name in ("evaluate", "summarize"):
-        from sb3_latentswarm import evaluation
-
-        return getattr(evaluation, name)
-    raise AttributeError(f"module 'sb3_latentswarm' has no attribute {name!r}")

@@ -34,6 +34,7 @@ from sb3_latentswarm.baselines import FrontierPlanner, LawnmowerPlanner, RandomP
 from sb3_latentswarm.envs import make_vec_env
 from sb3_latentswarm.evaluation import (
     CONDITION_LABELS,
+    PAPER_TABLE1_P_FAIL,
     evaluate,
     evaluate_conditions,
     evaluate_p_fail_sweep,
@@ -58,6 +59,10 @@ class Args:
     """Monte Carlo runs per condition (default: the preset's, 10 for paper and fast)."""
     no_independent_ppo: bool = False
     """Skip training the independent RecurrentPPO baseline."""
+    stochastic: bool = False
+    """Sample the learned policies' Gaussian actions (default: act with the mean, as SB3's evaluate_policy does)."""
+    model_notes: str | None = None
+    """How a --model was trained, written into run.md next to its path."""
     device: str = "auto"
     threads: int = 1
     """torch CPU threads."""
@@ -137,12 +142,13 @@ def main() -> None:
     output = Path(args.output or f"docs/results/{preset.name}")
     output.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
+    deterministic = not args.stochastic  # for the learned policies; the planners have their own rules
     commit = git_commit()  # the code that runs, before anything is written
 
     start = time.perf_counter()
     if args.model:
         model = LatentSwarmPPO.load(args.model, device=args.device)
-        trained = f"loaded from `{args.model}` (trained elsewhere; see the notes next to this file)"
+        trained = f"loaded from `{args.model}` ({args.model_notes or 'trained elsewhere; see the notes next to this file'})"
     else:
         env = make_vec_env(preset.n_envs, config=config, seed=seed)
         model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=seed, device=args.device, **preset.algo_kwargs)
@@ -154,7 +160,13 @@ def main() -> None:
     # Table I, left: the five conditions
     start = time.perf_counter()
     conditions, condition_curves = evaluate_conditions(
-        model, p_fail=config.p_fail, n_episodes=episodes, seed=seed, config=config, return_curves=True
+        model,
+        p_fail=config.p_fail,
+        n_episodes=episodes,
+        seed=seed,
+        config=config,
+        return_curves=True,
+        deterministic=deterministic,
     )
     conditions.to_csv(output / "conditions.csv", index=False)
     condition_summary = summarize(conditions, by="condition")
@@ -162,12 +174,12 @@ def main() -> None:
     plot_curves(condition_curves, CONDITION_LABELS, output / "coverage_vs_time.png", f"Coverage against time ({preset.name})")
 
     # Table I, right: the p_f sweep
-    sweep = evaluate_p_fail_sweep(model, p_fails=preset.p_fails, n_episodes=episodes, seed=seed, config=config)
+    sweep = evaluate_p_fail_sweep(
+        model, p_fails=preset.p_fails, n_episodes=episodes, seed=seed, config=config, deterministic=deterministic
+    )
     sweep.to_csv(output / "p_fail_sweep.csv", index=False)
     sweep_summary = summarize(sweep, by="p_fail")
     (output / "p_fail_sweep.md").write_text(to_markdown(side_by_side(sweep_summary)) + "\n")
-    from sb3_latentswarm.evaluation import PAPER_TABLE1_P_FAIL
-
     plot_p_fail(sweep, PAPER_TABLE1_P_FAIL, output / "coverage_vs_p_fail.png")
     timings["evaluation of conditions and p_f sweep"] = time.perf_counter() - start
 
@@ -184,7 +196,7 @@ def main() -> None:
     if preset.baseline_timesteps and not args.no_independent_ppo:
         independent_env = make_vec_env(preset.n_envs, config=config, seed=seed)
         independent = train_independent_ppo(independent_env, preset.baseline_timesteps, seed)
-        frame = evaluate(independent, "proposed", n_episodes=episodes, seed=seed, config=config)
+        frame = evaluate(independent, "proposed", n_episodes=episodes, seed=seed, config=config, deterministic=deterministic)
         rows.append(frame.assign(condition=f"independent RecurrentPPO ({preset.baseline_timesteps:,} steps)"))
     rows.append(conditions[conditions["condition"] == "proposed"].assign(condition="LatentSwarmPPO (proposed)"))
     baselines = pd.concat(rows, ignore_index=True)
@@ -202,8 +214,8 @@ def main() -> None:
         f"device {model.device}, Python {platform.python_version()}, torch {th.__version__}",
         f"- model: {trained}",
         f"- preset: {preset.description}",
-        f"- evaluation: {episodes} episodes per row, env seeds {seed}..{seed + episodes - 1}, deterministic actions, "
-        f"p_f = {config.p_fail} unless swept",
+        f"- evaluation: {episodes} episodes per row, env seeds {seed}..{seed + episodes - 1}, "
+        f"{'stochastic (sampled)' if args.stochastic else 'deterministic (mean)'} actions, p_f = {config.p_fail} unless swept",
         *(f"- wall time, {name}: {seconds:.0f} s" for name, seconds in timings.items()),
         "",
         "## Conditions (Table I, left)\n",

@@ -4,6 +4,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -27,6 +28,21 @@ def test_reproduce_table1_smoke(tmp_path):
     for name in (*tables, "coverage_vs_time.png", "coverage_vs_p_fail.png"):
         assert (tmp_path / name).stat().st_size > 0, name
     assert "(paper)" in (tmp_path / "conditions.md").read_text()
+
+    # --model evaluates a saved model again; --stochastic samples the policy instead of acting with its mean
+    again = tmp_path / "stochastic"
+    result = run_script(
+        "examples/reproduce_table1.py",
+        *("--preset", "smoke", "--model", str(tmp_path / "model.zip"), "--output", str(again)),
+        *("--episodes", "2", "--stochastic", "--no-independent-ppo", "--model-notes", "the smoke model"),
+    )
+    assert result.returncode == 0, result.stderr
+    report = (again / "run.md").read_text()
+    assert "stochastic (sampled) actions" in report and "(the smoke model)" in report
+    sampled = pd.read_csv(again / "conditions.csv").query("condition == 'proposed'")
+    mean_action = conditions.query("condition == 'proposed'").head(2)
+    assert len(sampled) == 2
+    assert not np.allclose(sampled["episode_return"].to_numpy(), mean_action["episode_return"].to_numpy())
 
 
 def test_train_example_smoke(tmp_path):

@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import platform
+import shlex
 import subprocess
 import sys
 import time
@@ -205,7 +206,7 @@ def main() -> None:
     (output / "baselines.md").write_text(to_markdown(baseline_summary) + "\n")
     timings["baselines"] = time.perf_counter() - start
 
-    command = "python " + " ".join(sys.argv)
+    command = "python " + shlex.join(sys.argv)
     run = [
         f"# Table I run: preset `{preset.name}`\n",
         f"- command: `{command}`",

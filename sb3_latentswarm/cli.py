@@ -76,11 +76,13 @@ def command_train(args: argparse.Namespace) -> int:
     (output / "config.json").write_text(json.dumps(preset.config.to_dict(), indent=2))
     print(f"Trained in {train_seconds:.0f} s; saved {model_path}")
     if args.evaluate:
-        _evaluate_and_print(model, preset, args.seed, output, p_fail_sweep=False, baselines=True)
+        _evaluate_and_print(model, preset, args, output, p_fail_sweep=False, baselines=True)
     return 0
 
 
-def _evaluate_and_print(model, preset: Preset, seed: int, output: Path, p_fail_sweep: bool, baselines: bool) -> None:
+def _evaluate_and_print(
+    model, preset: Preset, args: argparse.Namespace, output: Path, p_fail_sweep: bool, baselines: bool
+) -> None:
     from sb3_latentswarm.evaluation import (
         CONDITIONS,
         evaluate,
@@ -90,10 +92,9 @@ def _evaluate_and_print(model, preset: Preset, seed: int, output: Path, p_fail_s
         to_markdown,
     )
 
-    config, episodes = preset.config, preset.eval_episodes
-    frames = [
-        evaluate_conditions(model, conditions=CONDITIONS, p_fail=config.p_fail, n_episodes=episodes, seed=seed, config=config)
-    ]
+    config, episodes, seed = preset.config, preset.eval_episodes, args.seed
+    policy_kwargs = dict(n_episodes=episodes, seed=seed, config=config, deterministic=not args.stochastic)
+    frames = [evaluate_conditions(model, conditions=CONDITIONS, p_fail=config.p_fail, **policy_kwargs)]
     if baselines:
         from sb3_latentswarm.baselines import FrontierPlanner, LawnmowerPlanner, RandomPlanner
 
@@ -110,10 +111,11 @@ def _evaluate_and_print(model, preset: Preset, seed: int, output: Path, p_fail_s
     table = pd.concat(frames, ignore_index=True)
     table.to_csv(output / "conditions.csv", index=False)
     summary = summarize(table, by="condition")
-    _print_table(f"Conditions (p_f = {config.p_fail}, {episodes} episodes each)", to_markdown(summary))
+    actions = "sampled" if args.stochastic else "mean"
+    _print_table(f"Conditions (p_f = {config.p_fail}, {episodes} episodes each, {actions} actions)", to_markdown(summary))
     (output / "conditions.md").write_text(to_markdown(summary) + "\n")
     if p_fail_sweep:
-        sweep = evaluate_p_fail_sweep(model, p_fails=preset.p_fails, n_episodes=episodes, seed=seed, config=config)
+        sweep = evaluate_p_fail_sweep(model, p_fails=preset.p_fails, **policy_kwargs)
         sweep.to_csv(output / "p_fail_sweep.csv", index=False)
         sweep_summary = summarize(sweep, by="p_fail")
         _print_table("p_f sweep (proposed)", to_markdown(sweep_summary))
@@ -136,7 +138,7 @@ def command_evaluate(args: argparse.Namespace) -> int:
         preset = dataclasses.replace(preset, eval_episodes=args.episodes)
     output = Path(args.output or Path(args.model).parent)
     output.mkdir(parents=True, exist_ok=True)
-    _evaluate_and_print(model, preset, args.seed, output, p_fail_sweep=args.p_fail_sweep, baselines=not args.no_baselines)
+    _evaluate_and_print(model, preset, args, output, p_fail_sweep=args.p_fail_sweep, baselines=not args.no_baselines)
     return 0
 
 
@@ -145,7 +147,15 @@ def command_render(args: argparse.Namespace) -> int:
 
     preset = _preset_from_args(args)
     model = _load_model(args.model, args.device) if args.model else None
-    path = render_episode(model, preset.config, args.output, seed=args.seed, condition=args.condition, fps=args.fps)
+    path = render_episode(
+        model,
+        preset.config,
+        args.output,
+        seed=args.seed,
+        condition=args.condition,
+        fps=args.fps,
+        deterministic=not args.stochastic,
+    )
     print(f"Wrote {path}")
     return 0
 
@@ -164,6 +174,11 @@ def build_parser() -> argparse.ArgumentParser:
             type=int,
             default=1,
             help="torch CPU threads (default 1: the small recurrent nets run fastest single-threaded; 0 keeps torch's)",
+        )
+        p.add_argument(
+            "--stochastic",
+            action="store_true",
+            help="sample the policy's Gaussian actions when evaluating or rendering (default: its mean action)",
         )
 
     train = sub.add_parser("train", help="train LatentSwarmPPO on a preset")

@@ -11,6 +11,7 @@ import contextlib
 from pathlib import Path
 
 import numpy as np
+import torch as th
 
 from sb3_latentswarm.config import SwarmConfig
 
@@ -24,6 +25,8 @@ def run_episode(model, config: SwarmConfig, seed: int = 0, condition: str = "pro
     :param config: the env config; ``condition`` ``"full_comm"`` / ``"no_comm"`` overrides its ``link_mode``
     :param condition: one of the evaluation conditions (``"proposed"``, ``"full_comm"``, ``"no_comm"``,
         ``"no_predictor"``, ``"no_memory"``)
+    :param deterministic: act with the mean action; ``False`` samples the policy with torch's generator seeded from
+        ``seed`` inside ``torch.random.fork_rng`` (the global generator is left as it was)
     :return: (frames (T+1, H, W, 3) uint8, positions (T+1, N, 3) in metres, dropouts (T+1,) bool, final infos)
     """
     from sb3_latentswarm.envs import SwarmReconEnv
@@ -35,7 +38,8 @@ def run_episode(model, config: SwarmConfig, seed: int = 0, condition: str = "pro
     policy = getattr(model, "policy", None)
     switches = policy_switches(policy, condition) if policy is not None else contextlib.nullcontext()
     frames, positions, dropouts, state, infos = [], [], [], None, {}
-    with switches:
+    with switches, th.random.fork_rng():
+        th.manual_seed(seed)  # the action noise of deterministic=False
         while True:
             frames.append(env.render())
             positions.append(env.positions.copy())
@@ -87,14 +91,16 @@ def render_episode(
     condition: str = "proposed",
     fps: int = 10,
     max_frames: int = 400,
+    deterministic: bool = True,
 ) -> Path:
     """Write an animated GIF of one episode to ``output`` and a trajectory figure next to it (``*_trajectories.png``).
 
     :param max_frames: longer episodes are subsampled evenly to at most this many frames
+    :param deterministic: act with the policy's mean action (``False``: sample it, reproducibly from ``seed``)
     """
     import imageio.v2 as imageio
 
-    frames, positions, dropouts, _ = run_episode(model, config, seed=seed, condition=condition)
+    frames, positions, dropouts, _ = run_episode(model, config, seed=seed, condition=condition, deterministic=deterministic)
     frames = _mark_dropouts(_draw_trails(frames, positions, config), dropouts)
     if len(frames) > max_frames:
         frames = frames[np.linspace(0, len(frames) - 1, max_frames).round().astype(int)]

@@ -7,8 +7,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import torch as th
 
+from sb3_latentswarm import LatentSwarmPPO
 from sb3_latentswarm.cli import main, parse_overrides
+from sb3_latentswarm.presets import get_preset
+from sb3_latentswarm.rendering import run_episode
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -63,6 +67,21 @@ def test_cli_train_evaluate_render(tmp_path, capsys):
     gif = tmp_path / "episode.gif"
     assert main(["render", "--preset", "smoke", "--model", model, "--output", str(gif)]) == 0
     assert gif.stat().st_size > 0 and (tmp_path / "episode_trajectories.png").exists()
+
+    # --stochastic samples the policy: in the evaluation tables and, reproducibly from --seed, in rendered episodes
+    assert main(["evaluate", "--preset", "smoke", "--model", model, "--no-baselines", "--stochastic"]) == 0
+    assert "sampled actions" in capsys.readouterr().out
+    trained = LatentSwarmPPO.load(model)
+    config = get_preset("smoke").config
+    sampled = []
+    for _ in range(2):
+        th.rand(10)  # move the global torch generator: the episode's noise must come from seed alone
+        torch_state = th.random.get_rng_state()
+        sampled.append(run_episode(trained, config, seed=3, deterministic=False)[1])
+        assert th.equal(th.random.get_rng_state(), torch_state)  # and the global generator is left alone
+    mean_action = run_episode(trained, config, seed=3, deterministic=True)[1]
+    np.testing.assert_array_equal(sampled[0], sampled[1])
+    assert sampled[0].shape != mean_action.shape or not np.allclose(sampled[0], mean_action)
 
 
 def test_cli_overrides_are_typed_and_checked():

@@ -128,3 +128,19 @@ def test_continue_training_example_smoke(tmp_path):
     )
     assert result.returncode == 0, result.stderr
     assert "Continued" in result.stdout and (tmp_path / "more" / "progress.csv").exists()
+
+    # the two checkpoints of this run along training, both ways of acting
+    models = (str(first / "model.zip"), str(tmp_path / "more" / "model.zip"))
+    curve = tmp_path / "curve"
+    result = run_script(
+        "examples/learning_curve.py", "--preset", "smoke", "--episodes", "2", "--output", str(curve), "--models", *models
+    )
+    assert result.returncode == 0, result.stderr
+    episodes = pd.read_csv(curve / "learning_curve.csv")
+    assert sorted(episodes["updates"].unique()) == [2, 4] and set(episodes["actions"]) == {"mean", "sampled"}
+    assert len(episodes) == 2 * 2 * 5 * 2  # checkpoints x ways of acting x conditions x episodes
+    assert (curve / "learning_curve.png").stat().st_size > 0 and "No comm (LB) coverage (%)" in (curve / "run.md").read_text()
+    result = run_script(
+        "examples/learning_curve.py", "--preset", "smoke", "--output", str(curve), "--models", models[0], models[0]
+    )
+    assert result.returncode == 2 and "both have 2 updates" in result.stderr

@@ -31,7 +31,13 @@ import pandas as pd
 import torch as th
 
 from sb3_latentswarm import LatentSwarmPPO
-from sb3_latentswarm.baselines import FrontierPlanner, LawnmowerPlanner, RandomPlanner, train_independent_ppo
+from sb3_latentswarm.baselines import (
+    FrontierPlanner,
+    IndependentRecurrentPPO,
+    LawnmowerPlanner,
+    RandomPlanner,
+    train_independent_ppo,
+)
 from sb3_latentswarm.envs import make_vec_env
 from sb3_latentswarm.evaluation import (
     CONDITION_LABELS,
@@ -60,6 +66,10 @@ class Args:
     """Monte Carlo runs per condition (default: the preset's, 10 for paper and fast)."""
     no_independent_ppo: bool = False
     """Skip training the independent RecurrentPPO baseline."""
+    baseline_timesteps: int | None = None
+    """Agent-steps of the independent RecurrentPPO baseline (default: the preset's)."""
+    independent_model: str | None = None
+    """Evaluate this saved independent RecurrentPPO (independent_ppo.zip of an earlier run) instead of training one."""
     stochastic: bool = False
     """Sample the learned policies' Gaussian actions (default: act with the mean, as SB3's evaluate_policy does)."""
     model_notes: str | None = None
@@ -194,11 +204,18 @@ def main() -> None:
     for condition in ("proposed", "full_comm", "no_comm"):
         frame = evaluate(frontier, condition, n_episodes=episodes, seed=seed, config=config)
         rows.append(frame.assign(condition=f"frontier ({condition})"))
-    if preset.baseline_timesteps and not args.no_independent_ppo:
+    if args.independent_model:
+        independent = IndependentRecurrentPPO.load(args.independent_model, device=args.device)
+    elif (args.baseline_timesteps or preset.baseline_timesteps) and not args.no_independent_ppo:
         independent_env = make_vec_env(preset.n_envs, config=config, seed=seed)
-        independent = train_independent_ppo(independent_env, preset.baseline_timesteps, seed)
+        independent = train_independent_ppo(independent_env, args.baseline_timesteps or preset.baseline_timesteps, seed)
+        independent.save(output / "independent_ppo.zip")
+    else:
+        independent = None
+    if independent is not None:
+        steps = independent.model.num_timesteps
         frame = evaluate(independent, "proposed", n_episodes=episodes, seed=seed, config=config, deterministic=deterministic)
-        rows.append(frame.assign(condition=f"independent RecurrentPPO ({preset.baseline_timesteps:,} steps)"))
+        rows.append(frame.assign(condition=f"independent RecurrentPPO ({steps:,} steps)"))
     rows.append(conditions[conditions["condition"] == "proposed"].assign(condition="LatentSwarmPPO (proposed)"))
     baselines = pd.concat(rows, ignore_index=True)
     baselines.to_csv(output / "baselines.csv", index=False)

@@ -6,8 +6,14 @@ import numpy as np
 import pytest
 
 from sb3_latentswarm import SwarmConfig
-from sb3_latentswarm.baselines import FrontierPlanner, LawnmowerPlanner, RandomPlanner
-from sb3_latentswarm.envs import SwarmReconEnv
+from sb3_latentswarm.baselines import (
+    FrontierPlanner,
+    IndependentRecurrentPPO,
+    LawnmowerPlanner,
+    RandomPlanner,
+    train_independent_ppo,
+)
+from sb3_latentswarm.envs import SwarmReconEnv, make_vec_env
 from sb3_latentswarm.evaluation import EPISODE_COLUMNS, evaluate
 
 
@@ -176,3 +182,19 @@ def test_random_planner_is_uniform_and_reproducible():
     assert not df["coverage"].equals(other["coverage"])
     with pytest.raises(ValueError, match="seed"):
         RandomPlanner(config, seed=-1)
+
+
+def test_independent_ppo_sees_only_its_own_observation_and_round_trips(tmp_path):
+    config = SwarmConfig(n_agents=2, grid_width=8, grid_height=8, max_steps=10, num_obstacles=2)
+    independent = train_independent_ppo(make_vec_env(2, config=config, seed=0), 2 * 2 * 16, n_steps=16, batch_size=32)
+    assert set(independent.model.observation_space.spaces) == {"local_obs", "proprio"}
+    independent.save(tmp_path / "independent.zip")
+    loaded = IndependentRecurrentPPO.load(tmp_path / "independent.zip", device="cpu")
+    env = make_vec_env(2, config=config, seed=1)
+    obs = env.reset()
+    starts = np.ones(env.num_envs, dtype=bool)
+    first, _ = independent.predict(obs, None, starts, deterministic=True)
+    second, _ = loaded.predict(obs, None, starts, deterministic=True)
+    np.testing.assert_array_equal(first, second)
+    with pytest.raises(ValueError, match="no file at"):
+        IndependentRecurrentPPO.load(tmp_path / "missing.zip")

@@ -38,7 +38,15 @@ def test_reproduce_table1_smoke(tmp_path):
     result = run_script(
         "examples/reproduce_table1.py",
         *("--preset", "smoke", "--model", str(tmp_path / "model.zip"), "--output", str(again)),
-        *("--episodes", "2", "--stochastic", "--no-independent-ppo", "--model-notes", "the smoke model"),
+        *(
+            "--episodes",
+            "2",
+            "--stochastic",
+            "--independent-model",
+            str(tmp_path / "independent_ppo.zip"),
+            "--model-notes",
+            "the smoke model",
+        ),
     )
     assert result.returncode == 0, result.stderr
     report = (again / "run.md").read_text()
@@ -46,6 +54,9 @@ def test_reproduce_table1_smoke(tmp_path):
     sampled = pd.read_csv(again / "conditions.csv").query("condition == 'proposed'")
     mean_action = conditions.query("condition == 'proposed'").head(2)
     assert len(sampled) == 2
+    baselines = pd.read_csv(again / "baselines.csv")
+    assert (baselines["condition"] == "independent RecurrentPPO (768 steps)").sum() == 2  # the saved one, not retrained
+    assert not (again / "independent_ppo.zip").exists()
     assert not np.allclose(sampled["episode_return"].to_numpy(), mean_action["episode_return"].to_numpy())
 
 

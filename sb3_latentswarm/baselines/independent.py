@@ -7,6 +7,7 @@ and the proprioceptive state ``proprio``): no links, no global state, no critic 
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -57,6 +58,18 @@ class IndependentRecurrentPPO:
         own, agent_names = as_vec_observation(observation, INDEPENDENT_KEYS, "IndependentRecurrentPPO")
         actions, state = self.model.predict(own, state, episode_start, deterministic)
         return (dict(zip(agent_names, actions)) if agent_names is not None else actions), state
+
+    def save(self, path: str | Path) -> None:
+        """Save the wrapped ``RecurrentPPO`` (SB3's zip format)."""
+        self.model.save(path)
+
+    @classmethod
+    def load(cls, path: str | Path, device: str = "auto") -> IndependentRecurrentPPO:
+        """Load a ``RecurrentPPO`` saved by :meth:`save` (or trained on :class:`OwnObservationVecEnv` elsewhere)."""
+        if not Path(path).exists():
+            raise ValueError(f"IndependentRecurrentPPO.load: no file at {path}")
+        return cls(RecurrentPPO.load(path, device=device))
+
 
 def train_independent_ppo(
     vec_env: VecEnv,

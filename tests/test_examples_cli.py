@@ -155,3 +155,13 @@ def test_continue_training_example_smoke(tmp_path):
         "examples/learning_curve.py", "--preset", "smoke", "--output", str(curve), "--models", models[0], models[0]
     )
     assert result.returncode == 2 and "both have 2 updates" in result.stderr
+
+    # every link down: each UAV uses its substitute message at every step
+    dropout = tmp_path / "dropout"
+    result = run_script(
+        "examples/sustained_dropout.py", "--preset", "smoke", "--model", models[1], "--episodes", "2", "--output", str(dropout)
+    )
+    assert result.returncode == 0, result.stderr
+    episodes = pd.read_csv(dropout / "sustained_dropout.csv")
+    assert len(episodes) == 2 * 3 * 2 and (episodes["link_up_rate"] == 0).all() and (episodes["dropout_rate"] == 1).all()
+    assert "zero vector" in (dropout / "run.md").read_text()

@@ -18,10 +18,6 @@ PPO optimizes), on the same episode seeds. It writes into ``--output``:
 from __future__ import annotations
 
 import argparse
-import platform
-import shlex
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -30,6 +26,7 @@ import pandas as pd
 import torch as th
 
 from sb3_latentswarm import LatentSwarmPPO
+from sb3_latentswarm.common.run_record import git_commit, write_run_record
 from sb3_latentswarm.evaluation import (
     CONDITION_LABELS,
     CONDITIONS,
@@ -41,15 +38,6 @@ from sb3_latentswarm.evaluation import (
 from sb3_latentswarm.presets import PRESETS, get_preset
 
 ACTIONS = {"mean": True, "sampled": False}  # label -> deterministic
-
-
-def git_commit() -> str:
-    try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True)
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True)
-        return out.stdout.strip() + (" (with uncommitted changes)" if dirty.stdout.strip() else "")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
 
 
 def evaluate_checkpoints(models: list[str], config, episodes: int, seed: int) -> pd.DataFrame:
@@ -134,23 +122,14 @@ def main() -> None:
     (output / "learning_curve.md").write_text(table + "\n")
     plot(summary, output / "learning_curve.png")
 
-    run = [
-        f"# Learning curve: preset `{args.preset}`\n",
-        f"- command: `python {shlex.join(sys.argv)}`",
-        f"- commit: {commit}",
-        f"- machine: {platform.machine()}, {platform.system()}, {th.get_num_threads()} torch thread(s), "
-        f"Python {platform.python_version()}, torch {th.__version__}",
-        "- models: " + ", ".join(f"`{path}`" for path in args.models),
-        f"- evaluation: {args.episodes} episodes per cell, env seeds {args.seed}..{args.seed + args.episodes - 1} "
+    facts = [
+        "models: " + ", ".join(f"`{path}`" for path in args.models),
+        f"evaluation: {args.episodes} episodes per cell, env seeds {args.seed}..{args.seed + args.episodes - 1} "
         f"(the same maps and starts in every cell), p_f = {config.p_fail}; 'mean' acts with the Gaussian's mean, "
         "'sampled' samples it with action-noise seed = env seed",
-        f"- wall time: {seconds:.0f} s",
-        "",
-        table,
-        "",
+        f"wall time: {seconds:.0f} s",
     ]
-    (output / "run.md").write_text("\n".join(run))
-    print("\n".join(run))
+    write_run_record(output, f"Learning curve: preset `{args.preset}`", commit, facts, [table])
 
 
 if __name__ == "__main__":

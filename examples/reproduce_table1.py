@@ -18,9 +18,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import platform
-import shlex
-import subprocess
 import sys
 import time
 from dataclasses import dataclass
@@ -38,6 +35,7 @@ from sb3_latentswarm.baselines import (
     RandomPlanner,
     train_independent_ppo,
 )
+from sb3_latentswarm.common.run_record import git_commit, write_run_record
 from sb3_latentswarm.envs import make_vec_env
 from sb3_latentswarm.evaluation import (
     CONDITION_LABELS,
@@ -91,15 +89,6 @@ def parse_args() -> Args:
             kind = int if field.type in ("int", "int | None") else str
             parser.add_argument(flag, type=kind, default=field.default)
     return Args(**vars(parser.parse_args()))
-
-
-def git_commit() -> str:
-    try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True)
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True)
-        return out.stdout.strip() + (" (with uncommitted changes)" if dirty.stdout.strip() else "")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
 
 
 def plot_curves(curves: dict, labels: dict, path: Path, title: str) -> None:
@@ -223,19 +212,15 @@ def main() -> None:
     (output / "baselines.md").write_text(to_markdown(baseline_summary) + "\n")
     timings["baselines"] = time.perf_counter() - start
 
-    command = "python " + shlex.join(sys.argv)
-    run = [
-        f"# Table I run: preset `{preset.name}`\n",
-        f"- command: `{command}`",
-        f"- commit: {commit}",
-        f"- machine: {platform.machine()}, {platform.system()}, {th.get_num_threads()} torch thread(s), "
-        f"device {model.device}, Python {platform.python_version()}, torch {th.__version__}",
-        f"- model: {trained}",
-        f"- preset: {preset.description}",
-        f"- evaluation: {episodes} episodes per row, env seeds {seed}..{seed + episodes - 1}, "
-        f"{'stochastic (sampled)' if args.stochastic else 'deterministic (mean)'} actions, p_f = {config.p_fail} unless swept",
-        *(f"- wall time, {name}: {seconds:.0f} s" for name, seconds in timings.items()),
-        "",
+    actions = "stochastic (sampled)" if args.stochastic else "deterministic (mean)"
+    facts = [
+        f"model: {trained}",
+        f"preset: {preset.description}",
+        f"evaluation: {episodes} episodes per row, env seeds {seed}..{seed + episodes - 1}, {actions} actions, "
+        f"p_f = {config.p_fail} unless swept",
+        *(f"wall time, {name}: {seconds:.0f} s" for name, seconds in timings.items()),
+    ]
+    body = [
         "## Conditions (Table I, left)\n",
         to_markdown(side_by_side(condition_summary)),
         "",
@@ -244,10 +229,8 @@ def main() -> None:
         "",
         "## Baselines (not in the paper)\n",
         to_markdown(baseline_summary),
-        "",
     ]
-    (output / "run.md").write_text("\n".join(run))
-    print("\n".join(run))
+    write_run_record(output, f"Table I run: preset `{preset.name}`", commit, facts, body, device=model.device)
 
 
 if __name__ == "__main__":

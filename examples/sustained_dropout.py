@@ -13,10 +13,6 @@ memory zeroed (``no_memory``). Both ways of acting, mean and sampled, on the sam
 from __future__ import annotations
 
 import argparse
-import platform
-import shlex
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -24,6 +20,7 @@ import pandas as pd
 import torch as th
 
 from sb3_latentswarm import LatentSwarmPPO
+from sb3_latentswarm.common.run_record import git_commit, write_run_record
 from sb3_latentswarm.evaluation import evaluate, summarize, to_markdown
 from sb3_latentswarm.presets import PRESETS, get_preset
 
@@ -42,13 +39,12 @@ def main() -> None:
     if not Path(args.model).exists():
         parser.error(f"--model: no file at {args.model}")
     th.set_num_threads(args.threads)
+    commit = git_commit()  # the code that runs, before anything is written
     config = get_preset(args.preset).config
     model = LatentSwarmPPO.load(args.model, device="cpu")
     output = Path(args.output)
     output.mkdir(parents=True, exist_ok=True)
 
-    describe = subprocess.run(["git", "describe", "--always", "--dirty"], capture_output=True, text=True)
-    commit = describe.stdout.strip() or "unknown"
     start = time.perf_counter()
     frames = []
     for actions, deterministic in (("mean", True), ("sampled", False)):
@@ -67,22 +63,13 @@ def main() -> None:
     episodes.to_csv(output / "sustained_dropout.csv", index=False)
     table = to_markdown(summarize(episodes, by=["actions", "substitute"]))
     (output / "sustained_dropout.md").write_text(table + "\n")
-    run = [
-        f"# Sustained dropout: preset `{args.preset}`\n",
-        f"- command: `python {shlex.join(sys.argv)}`",
-        f"- commit: {commit}",
-        f"- machine: {platform.machine()}, {platform.system()}, {th.get_num_threads()} torch thread(s), "
-        f"Python {platform.python_version()}, torch {th.__version__}",
-        f"- model: `{args.model}` ({model.num_timesteps:,} agent-steps of training)",
-        f"- evaluation: p_f = 1 (no message ever arrives), {args.episodes} episodes per row, env seeds "
+    facts = [
+        f"model: `{args.model}` ({model.num_timesteps:,} agent-steps of training)",
+        f"evaluation: p_f = 1 (no message ever arrives), {args.episodes} episodes per row, env seeds "
         f"{args.seed}..{args.seed + args.episodes - 1}; the substitute message is what every UAV uses at every step",
-        f"- wall time: {time.perf_counter() - start:.0f} s",
-        "",
-        table,
-        "",
+        f"wall time: {time.perf_counter() - start:.0f} s",
     ]
-    (output / "run.md").write_text("\n".join(run))
-    print("\n".join(run))
+    write_run_record(output, f"Sustained dropout: preset `{args.preset}`", commit, facts, [table])
 
 
 if __name__ == "__main__":

@@ -51,6 +51,8 @@ def test_reproduce_table1_smoke(tmp_path):
     assert result.returncode == 0, result.stderr
     report = (again / "run.md").read_text()
     assert "stochastic (sampled) actions" in report and "(the smoke model)" in report
+    assert report.startswith("# Table I run: preset `smoke`") and "- machine: " in report
+    assert "- command: `python examples/reproduce_table1.py --preset smoke --model " in report
     sampled = pd.read_csv(again / "conditions.csv").query("condition == 'proposed'")
     mean_action = conditions.query("condition == 'proposed'").head(2)
     assert len(sampled) == 2

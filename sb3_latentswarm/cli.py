@@ -200,11 +200,11 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--output", default=None)
     evaluate.set_defaults(func=command_evaluate)
 
-    render = sub.add_parser("render", help="write an animated GIF of one episode")
+    render = sub.add_parser("render", help="write an animated GIF (or MP4) of one episode and a trajectory figure")
     add_common(render, "demo")
     render.add_argument("--model", default=None, help="saved model (default: random actions)")
     render.add_argument("--condition", default="proposed")
-    render.add_argument("--output", default="episode.gif")
+    render.add_argument("--output", default="episode.gif", help="file ending in .gif or .mp4 (needs imageio-ffmpeg)")
     render.add_argument("--fps", type=int, default=10)
     render.set_defaults(func=command_render)
     return parser

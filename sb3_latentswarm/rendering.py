@@ -1,8 +1,9 @@
-"""Episode rendering: an animated GIF of one episode and a figure of the UAV trajectories.
+"""Episode rendering: an animated GIF (or MP4) of one episode and a figure of the UAV trajectories.
 
 The frames come from ``SwarmReconEnv(render_mode="rgb_array")`` (map estimate, true obstacles not yet found, current
 footprints, UAVs, live links and a coverage bar); this module adds the UAV trails and a dropout marker (a red frame
-around the image at steps where some UAV received nothing) and writes the files with imageio and matplotlib.
+around the image at steps where some UAV received nothing) and writes the files with imageio and matplotlib. MP4
+needs the ``imageio-ffmpeg`` package (``pip install "sb3-latentswarm[video]"``); GIF needs nothing more.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import torch as th
 
 from sb3_latentswarm.config import SwarmConfig
 
+ANIMATION_FORMATS = (".gif", ".mp4")
 _TRAIL_COLOURS = np.array([[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189]], dtype=np.uint8)
 
 
@@ -93,22 +95,47 @@ def render_episode(
     max_frames: int = 400,
     deterministic: bool = True,
 ) -> Path:
-    """Write an animated GIF of one episode to ``output`` and a trajectory figure next to it (``*_trajectories.png``).
+    """Write an animated GIF or MP4 of one episode to ``output`` and a trajectory figure next to it
+    (``*_trajectories.png``).
 
-    :param max_frames: longer episodes are subsampled evenly to at most this many frames
+    :param output: file path ending in ``.gif`` or ``.mp4``
+    :param fps: frames per second of the animation (> 0)
+    :param max_frames: longer episodes are subsampled evenly to at most this many frames (>= 2)
     :param deterministic: act with the policy's mean action (``False``: sample it, reproducibly from ``seed``)
     """
     import imageio.v2 as imageio
 
+    output = Path(output)
+    _check_animation_args(output, fps, max_frames)
     frames, positions, dropouts, _ = run_episode(model, config, seed=seed, condition=condition, deterministic=deterministic)
     frames = _mark_dropouts(_draw_trails(frames, positions, config), dropouts)
     if len(frames) > max_frames:
         frames = frames[np.linspace(0, len(frames) - 1, max_frames).round().astype(int)]
-    output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    imageio.mimsave(output, list(frames), duration=1.0 / fps, loop=0)
+    if output.suffix.lower() == ".gif":
+        imageio.mimsave(output, list(frames), duration=1.0 / fps, loop=0)
+    else:
+        imageio.mimsave(output, list(frames), fps=fps, macro_block_size=1)
     plot_trajectories(positions, dropouts, config, output.with_name(output.stem + "_trajectories.png"))
     return output
+
+
+def _check_animation_args(output: Path, fps: int, max_frames: int) -> None:
+    """Fail before running the episode when the animation could not be written."""
+    suffix = output.suffix.lower()
+    if suffix not in ANIMATION_FORMATS:
+        raise ValueError(f"output must end in one of {ANIMATION_FORMATS}, got {str(output)!r}")
+    if suffix == ".mp4":
+        try:
+            import imageio_ffmpeg  # noqa: F401
+        except ImportError as error:
+            raise ValueError(
+                "output: writing .mp4 needs imageio-ffmpeg (pip install 'sb3-latentswarm[video]'); use .gif otherwise"
+            ) from error
+    if not fps > 0:
+        raise ValueError(f"fps must be > 0, got {fps}")
+    if max_frames < 2:
+        raise ValueError(f"max_frames must be >= 2, got {max_frames}")
 
 
 def plot_trajectories(positions: np.ndarray, dropouts: np.ndarray, config: SwarmConfig, path: str | Path) -> Path:

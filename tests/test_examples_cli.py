@@ -80,6 +80,9 @@ def test_cli_train_evaluate_render(tmp_path, capsys):
     gif = tmp_path / "episode.gif"
     assert main(["render", "--preset", "smoke", "--model", model, "--output", str(gif)]) == 0
     assert gif.stat().st_size > 0 and (tmp_path / "episode_trajectories.png").exists()
+    video = tmp_path / "episode.mp4"
+    assert main(["render", "--preset", "smoke", "--model", model, "--output", str(video)]) == 0
+    assert video.read_bytes()[4:8] == b"ftyp"  # an MP4 container, written by imageio-ffmpeg
 
     # --stochastic samples the policy: in the evaluation tables and, reproducibly from --seed, in rendered episodes
     assert main(["evaluate", "--preset", "smoke", "--model", model, "--no-baselines", "--stochastic"]) == 0
@@ -112,6 +115,9 @@ def test_cli_overrides_are_typed_and_checked():
         (["train", "--preset", "smoke", "--set", "p_fail=1.5"], "p_fail must be in"),
         (["evaluate", "--model", "does/not/exist.zip"], "no file at"),
         (["train", "--preset", "smoke", "--set", "grid_width=abc"], "cannot read"),
+        (["render", "--preset", "smoke", "--output", "episode"], "output must end in one of"),
+        (["render", "--preset", "smoke", "--output", "episode.png"], "output must end in one of"),
+        (["render", "--preset", "smoke", "--fps", "0"], "fps must be > 0"),
     ],
 )
 def test_cli_bad_arguments_exit_with_a_clear_message(argv, message, capsys):

@@ -1,7 +1,7 @@
 """The ``sb3-latentswarm`` command: ``train``, ``evaluate`` and ``render``.
 
     sb3-latentswarm train --preset demo --evaluate          # the README's main job
-    sb3-latentswarm evaluate --model runs/demo/model.zip --p-fail-sweep
+    sb3-latentswarm evaluate --model runs/demo/model.zip --p-fail-sweep   # on the env config saved with the model
     sb3-latentswarm render --model runs/demo/model.zip --output episode.gif
 """
 
@@ -38,8 +38,31 @@ def parse_overrides(pairs: list[str]) -> dict[str, Any]:
     return overrides
 
 
-def _preset_from_args(args: argparse.Namespace) -> Preset:
-    preset = get_preset(args.preset)
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def _preset_from_args(args: argparse.Namespace, model: Any = None) -> Preset:
+    """The ``--preset`` named, or, without one, the training config saved with ``model`` (else ``demo``)."""
+    if args.preset is not None:
+        preset = get_preset(args.preset)
+    elif getattr(model, "swarm_config", None) is not None:
+        preset = Preset(
+            name="saved",
+            config=model.swarm_config,
+            n_envs=1,
+            total_timesteps=0,
+            description="the env config saved with the model",
+        )
+    else:
+        preset = get_preset("demo")
     overrides = parse_overrides(args.set or [])
     return preset.with_overrides(**overrides) if overrides else preset
 
@@ -132,11 +155,11 @@ def _load_model(path: str, device: str):
 
 
 def command_evaluate(args: argparse.Namespace) -> int:
-    preset = _preset_from_args(args)
     model = _load_model(args.model, args.device)
+    preset = _preset_from_args(args, model)
     if args.episodes:
         preset = dataclasses.replace(preset, eval_episodes=args.episodes)
-    output = Path(args.output or Path(args.model).parent)
+    output = Path(args.output or Path(args.model).parent / "evaluation")
     output.mkdir(parents=True, exist_ok=True)
     _evaluate_and_print(model, preset, args, output, p_fail_sweep=args.p_fail_sweep, baselines=not args.no_baselines)
     return 0
@@ -145,8 +168,8 @@ def command_evaluate(args: argparse.Namespace) -> int:
 def command_render(args: argparse.Namespace) -> int:
     from sb3_latentswarm.rendering import render_episode
 
-    preset = _preset_from_args(args)
     model = _load_model(args.model, args.device) if args.model else None
+    preset = _preset_from_args(args, model)
     path = render_episode(
         model,
         preset.config,
@@ -164,8 +187,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sb3-latentswarm", description="Train and evaluate latent-state UAV swarms.")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    def add_common(p: argparse.ArgumentParser, default_preset: str) -> None:
-        p.add_argument("--preset", default=default_preset, choices=sorted(PRESETS), help="experiment budget")
+    def add_common(p: argparse.ArgumentParser, default_preset: str | None) -> None:
+        preset_help = (
+            f"experiment budget and env (default: {default_preset})"
+            if default_preset
+            else "env config to run on (default: the one saved with --model; without a model, demo)"
+        )
+        p.add_argument("--preset", default=default_preset, choices=sorted(PRESETS), help=preset_help)
         p.add_argument("--set", nargs="*", metavar="FIELD=VALUE", help="override SwarmConfig fields, e.g. p_fail=0.5")
         p.add_argument("--seed", type=int, default=0)
         p.add_argument("--device", default="auto")
@@ -183,7 +211,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     train = sub.add_parser("train", help="train LatentSwarmPPO on a preset")
     add_common(train, "demo")
-    train.add_argument("--total-timesteps", type=int, default=None, help="override the preset's budget (agent-steps)")
+    train.add_argument("--total-timesteps", type=positive_int, default=None, help="override the preset's budget (agent-steps)")
     train.add_argument("--output", default=None, help="folder for model.zip and tables (default runs/PRESET)")
     train.add_argument("--evaluate", action="store_true", help="evaluate all conditions and baselines afterwards")
     train.add_argument("--tensorboard", default=None, help="TensorBoard log folder")
@@ -192,20 +220,20 @@ def build_parser() -> argparse.ArgumentParser:
     train.set_defaults(func=command_train)
 
     evaluate = sub.add_parser("evaluate", help="evaluate a saved model on the five conditions of Table I")
-    add_common(evaluate, "demo")
+    add_common(evaluate, None)
     evaluate.add_argument("--model", required=True)
-    evaluate.add_argument("--episodes", type=int, default=None)
+    evaluate.add_argument("--episodes", type=positive_int, default=None, help="episodes per row (default: the preset's)")
     evaluate.add_argument("--p-fail-sweep", action="store_true", help="also run the p_f sweep of Table I (right)")
     evaluate.add_argument("--no-baselines", action="store_true")
-    evaluate.add_argument("--output", default=None)
+    evaluate.add_argument("--output", default=None, help="folder for the tables (default: evaluation/ next to the model)")
     evaluate.set_defaults(func=command_evaluate)
 
     render = sub.add_parser("render", help="write an animated GIF (or MP4) of one episode and a trajectory figure")
-    add_common(render, "demo")
+    add_common(render, None)
     render.add_argument("--model", default=None, help="saved model (default: random actions)")
     render.add_argument("--condition", default="proposed")
     render.add_argument("--output", default="episode.gif", help="file ending in .gif or .mp4 (needs imageio-ffmpeg)")
-    render.add_argument("--fps", type=int, default=10)
+    render.add_argument("--fps", type=positive_int, default=10)
     render.set_defaults(func=command_render)
     return parser
 

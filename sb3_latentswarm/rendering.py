@@ -114,8 +114,9 @@ def render_episode(
     output.parent.mkdir(parents=True, exist_ok=True)
     if output.suffix.lower() == ".gif":
         imageio.mimsave(output, list(frames), duration=1.0 / fps, loop=0)
-    else:
-        imageio.mimsave(output, list(frames), fps=fps, macro_block_size=1)
+    else:  # H.264 in yuv420p needs even frame sizes: pad one row/column of the border colour where needed
+        pad = ((0, 0), (0, frames.shape[1] % 2), (0, frames.shape[2] % 2), (0, 0))
+        imageio.mimsave(output, list(np.pad(frames, pad, mode="edge")), fps=fps, macro_block_size=1)
     plot_trajectories(positions, dropouts, config, output.with_name(output.stem + "_trajectories.png"))
     return output
 

@@ -12,7 +12,7 @@ import torch as th
 from sb3_latentswarm import LatentSwarmPPO
 from sb3_latentswarm.cli import main, parse_overrides
 from sb3_latentswarm.presets import get_preset
-from sb3_latentswarm.rendering import run_episode
+from sb3_latentswarm.rendering import render_episode, run_episode
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -76,7 +76,11 @@ def test_cli_train_evaluate_render(tmp_path, capsys):
     assert "Conditions" in out and "lawnmower" in out and "no_predictor" in out
     model = str(tmp_path / "model.zip")
     assert main(["evaluate", "--preset", "smoke", "--model", model, "--p-fail-sweep", "--no-baselines"]) == 0
-    assert (tmp_path / "p_fail_sweep.csv").exists()
+    assert (tmp_path / "evaluation" / "p_fail_sweep.csv").exists()  # beside the model, not over train's tables
+    # without --preset, evaluate and render run on the env config saved with the model (smoke's 10x10, not demo's)
+    assert main(["evaluate", "--model", model, "--no-baselines", "--episodes", "2", "--output", str(tmp_path / "e")]) == 0
+    assert len(pd.read_csv(tmp_path / "e" / "conditions.csv")) == 5 * 2
+    assert main(["render", "--model", model, "--output", str(tmp_path / "saved_config.gif")]) == 0
     gif = tmp_path / "episode.gif"
     assert main(["render", "--preset", "smoke", "--model", model, "--output", str(gif)]) == 0
     assert gif.stat().st_size > 0 and (tmp_path / "episode_trajectories.png").exists()
@@ -100,6 +104,28 @@ def test_cli_train_evaluate_render(tmp_path, capsys):
     assert sampled[0].shape != mean_action.shape or not np.allclose(sampled[0], mean_action)
 
 
+def test_render_episode_checks_its_arguments_before_running(tmp_path):
+    config = get_preset("smoke").config
+    with pytest.raises(ValueError, match="output must end in one of"):
+        render_episode(None, config, tmp_path / "episode.avi")
+    with pytest.raises(ValueError, match="fps must be > 0, got 0"):
+        render_episode(None, config, tmp_path / "episode.gif", fps=0)
+    with pytest.raises(ValueError, match="max_frames must be >= 2, got 1"):
+        render_episode(None, config, tmp_path / "episode.gif", max_frames=1)
+    assert not any(tmp_path.iterdir())
+
+
+def test_render_episode_writes_mp4_with_odd_frame_sizes(tmp_path):
+    import imageio.v2 as imageio
+
+    config = get_preset("fast").config.replace(max_steps=4)  # 25x25 cells render to 475 pixels wide: odd for H.264
+    path = render_episode(None, config, tmp_path / "episode.mp4")
+    reader = imageio.get_reader(path)
+    width, height = reader.get_meta_data()["size"]
+    assert (width % 2, height % 2) == (0, 0) and reader.count_frames() == 5  # the reset frame and 4 steps
+    assert (tmp_path / "episode_trajectories.png").exists()
+
+
 def test_cli_overrides_are_typed_and_checked():
     overrides = parse_overrides(["p_fail=0.5", "n_agents=4", "link_mode=full"])
     assert overrides == {"p_fail": 0.5, "n_agents": 4, "link_mode": "full"}
@@ -117,7 +143,9 @@ def test_cli_overrides_are_typed_and_checked():
         (["train", "--preset", "smoke", "--set", "grid_width=abc"], "cannot read"),
         (["render", "--preset", "smoke", "--output", "episode"], "output must end in one of"),
         (["render", "--preset", "smoke", "--output", "episode.png"], "output must end in one of"),
-        (["render", "--preset", "smoke", "--fps", "0"], "fps must be > 0"),
+        (["render", "--preset", "smoke", "--fps", "0"], "--fps: must be >= 1, got 0"),
+        (["evaluate", "--model", "m.zip", "--episodes", "0"], "--episodes: must be >= 1, got 0"),
+        (["train", "--preset", "smoke", "--total-timesteps", "-5"], "--total-timesteps: must be >= 1, got -5"),
     ],
 )
 def test_cli_bad_arguments_exit_with_a_clear_message(argv, message, capsys):

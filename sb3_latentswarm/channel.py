@@ -141,12 +141,12 @@ class A2AChannel:
         return mask
 
     # ------------------------------------------------------------------ hot path
-    def sample(self, positions: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    def sample(self, positions: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
         """Draw the directed link matrix for one step.
 
         Draw order (shared with :meth:`draw`): ``rng.standard_normal(batch + (N, N, 2))`` for the fading, then
         ``rng.random(batch + (N, N + 1))`` whose first ``N`` columns give ``xi`` and last column gives ``I``.
-        No draws are made when ``link_mode`` is ``"full"`` or ``"none"``.
+        No draws are made (``rng`` may be ``None``) when ``link_mode`` is ``"full"`` or ``"none"``.
 
         :param positions: UAV positions in metres, shape (N, 3) or a batch (B, N, 3).
         :param rng: numpy random generator.
@@ -154,16 +154,31 @@ class A2AChannel:
         """
         pos = _check_positions(positions)
         n = pos.shape[-2]
-        mask = self._offdiag_mask(n)
         if self.link_mode != "channel":
             if self.link_mode == "full":
-                return np.broadcast_to(mask, pos.shape[:-1] + (n,)).copy()
+                return np.broadcast_to(self._offdiag_mask(n), pos.shape[:-1] + (n,)).copy()
             return np.zeros(pos.shape[:-1] + (n,), dtype=bool)
+        normals = rng.standard_normal(pos.shape[:-1] + (n, 2))
+        uniforms = rng.random(pos.shape[:-1] + (n + 1,))
+        return self.links_from_variates(pos, normals, uniforms)
+
+    def links_from_variates(self, positions: np.ndarray, normals: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
+        """The link matrix of Eq. (1) (``link_mode="channel"``) from the standard variates that :meth:`sample` draws.
+
+        Callers with one random stream per swarm (the batched env) draw the variates swarm by swarm and evaluate the
+        whole batch here.
+
+        :param positions: UAV positions in metres, (..., N, 3), already checked.
+        :param normals: standard normals, (..., N, N, 2): the fading of every directed link.
+        :param uniforms: U(0, 1) variates, (..., N, N + 1): ``xi`` from the first ``N`` columns, ``I`` from the last.
+        :return: boolean link matrix (..., N, N).
+        """
+        pos = positions
+        n = pos.shape[-2]
         diff = pos[..., :, None, :] - pos[..., None, :, :]
         d2 = np.maximum((diff * diff).sum(axis=-1), self._min_d2)  # squared 3D distance, clamped at d_min^2
         d_alpha = d2 if self._half_alpha == 1.0 else d2**self._half_alpha  # path loss d^alpha
-        z = rng.standard_normal(d2.shape + (2,))
-        u = rng.random(pos.shape[:-1] + (n + 1,))
+        z, u = normals, uniforms
         # Eq. (1): Gamma >= beta_th  <=>  2(K+1)|h|^2 >= 2(K+1) beta_th (sigma2 + I_i) d^alpha / (P L_atm)
         rhs = (self._c_noise + self._c_interf * u[..., n : n + 1]) * d_alpha  # I_i = I_max * u, one per receiver row
         if self.k_slope == 0.0:
@@ -175,7 +190,7 @@ class A2AChannel:
             lhs = (z[..., 0] + np.sqrt(2.0 * k)) ** 2 + z[..., 1] ** 2
             rhs *= 2.0 * (k + 1.0)
         # xi ~ Bernoulli(1 - p_f): the link survives iff u >= p_f
-        return (lhs >= rhs) & (u[..., :n] >= self.p_fail) & mask
+        return (lhs >= rhs) & (u[..., :n] >= self.p_fail) & self._offdiag_mask(n)
 
     # ------------------------------------------------------------------ helpers (tests, diagnostics)
     def draw(self, positions: np.ndarray, rng: np.random.Generator) -> ChannelDraws:

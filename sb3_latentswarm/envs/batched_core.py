@@ -45,6 +45,7 @@ __all__ = [
     "PROPRIO_DIM",
     "STATE_OBS_KEYS",
     "SWARM_ATTRIBUTES",
+    "SWARM_METHODS",
     "SwarmBatch",
     "agent_action_space",
     "agent_observation_space",
@@ -65,7 +66,9 @@ ENERGY_EPS = 1e-9
 #: Coverage share that defines ``steps_to_90``.
 COVERAGE_MILESTONE = 0.9
 #: Per-swarm state that the views read (each a property of :class:`SwarmBatch` with a leading swarm dimension).
-SWARM_ATTRIBUTES = ("coverage", "energy", "positions", "links", "ground_truth", "global_map_estimate", "reward_terms")
+SWARM_ATTRIBUTES = ("coverage", "energy", "positions", "links", "ground_truth", "global_map", "reward_terms")
+#: Per-swarm methods of :class:`SwarmBatch` (swarm index first) that the views expose.
+SWARM_METHODS = ("swarm_summary", "set_positions")
 
 
 def agent_observation_space(config: SwarmConfig) -> spaces.Dict:
@@ -97,8 +100,8 @@ class SwarmBatch:
 
     After :meth:`reset` or :meth:`step` the observations of every agent are in :attr:`local_obs` (B, N, F*F) int8,
     :attr:`proprio` (B, N, 8) float32 (``swarm_proprio`` of swarm ``b`` is ``proprio[b]``), :attr:`link_rows`
-    (B, N, N) float32 and :attr:`global_map` (B, H, W) int8: fresh read-only arrays, never modified afterwards, so
-    the views can hand out views of them.
+    (B, N, N) float32 and :attr:`global_map` (B, H, W) int8 (M_hat_t, which changes only when the swarm senses):
+    fresh read-only arrays, never modified afterwards, so the views can hand out views of them.
 
     :param config: the configuration shared by the swarms.
     :param n_swarms: B, the number of swarms.
@@ -206,12 +209,6 @@ class SwarmBatch:
     def ground_truth(self) -> np.ndarray:
         """The ground-truth occupancy maps M, (B, H, W) indexed [b, iy, ix], 1 = occupied (a copy)."""
         return self._truth.reshape(self.n_swarms, self._pad_height, self._pad_width)[self._interior].copy()
-
-    @property
-    def global_map_estimate(self) -> np.ndarray:
-        """M_hat_t now, (B, H, W) indexed [b, iy, ix]: -1 unknown, 0 free, 1 occupied (a copy; equal to
-        :attr:`global_map` except after :meth:`set_positions`, which changes nothing observed)."""
-        return self._map.reshape(self.n_swarms, self._pad_height, self._pad_width)[self._interior].copy()
 
     @property
     def reward_terms(self) -> np.ndarray:

@@ -163,7 +163,7 @@ class SwarmReconEnv(ParallelEnv):
     @property
     def global_map(self) -> np.ndarray:
         """A copy of M_hat_t, shape (H, W) indexed [iy, ix]: -1 unknown, 0 free, 1 occupied."""
-        return self._core.global_map_estimate[0]
+        return self._core.global_map[0].copy()
 
     @property
     def reward_terms(self) -> tuple[float, float, float]:

@@ -12,7 +12,8 @@ draws from it, in this order, exactly what a lone swarm draws, so a swarm's epis
 its slot in the batch:
 
 * at reset: the obstacle cells (``rng.choice(H*W, num_obstacles, replace=False)``), the start ``(x, y)``
-  (``rng.random((N, 2))``), the headings (``rng.uniform(-pi, pi, N)``), then the sensing and link draws below;
+  (:func:`~sb3_latentswarm.envs.start_positions.sample_start_positions`: ``rng.random((1, N, 2))``), the headings
+  (``rng.uniform(-pi, pi, N)``), then the sensing and link draws below;
 * at each step: the actuation noise (``rng.standard_normal((N, 3))``, if ``actuation_noise_std > 0``), then
 * sensing: the reading flips (``rng.random((N, F*F))``, if ``sensor_flip_prob > 0``), then
 * links (``link_mode="channel"``): ``rng.standard_normal((N, N, 2))`` and ``rng.random((N, N + 1))``
@@ -36,8 +37,9 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import seeding
 
-from sb3_latentswarm.channel import A2AChannel
+from sb3_latentswarm.channel import XI_UNSET, A2AChannel
 from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.envs.start_positions import sample_start_positions
 
 __all__ = [
     "ACTOR_OBS_KEYS",
@@ -121,7 +123,6 @@ class SwarmBatch:
 
         # Constants of the hot path.
         x_max, y_max = config.arena_size
-        self._arena_xy = np.array([x_max, y_max])
         self._pos_low = np.array([0.0, 0.0, config.min_altitude])
         self._pos_high = np.array([x_max, y_max, config.max_altitude])
         self._vel_scale = np.array([config.v_max, config.v_max, config.vz_max])
@@ -166,6 +167,7 @@ class SwarmBatch:
         # Kinematic state [p (3), v (3), chi, b] of every UAV, so e_t is one affine map of it.
         self.kinematics = np.zeros((b, n, PROPRIO_DIM))  # (B, N, 8)
         self._links = np.zeros((b, n, n), dtype=bool)  # [b, i, j]: receiver i got sender j
+        self._xi_state = np.full((b, n, n), XI_UNSET, dtype=np.int8)  # outage state of every directed link
         self.footprint = np.zeros((b, n, fw * fw), dtype=np.intp)  # padded index of every sensed cell
         self.t = np.zeros(b, dtype=np.int64)
         self.n_covered = np.zeros(b, dtype=np.int64)
@@ -258,7 +260,7 @@ class SwarmBatch:
             positions = self.check_positions(positions, len(idx))
         cfg = self.config
         n = self.n_agents
-        xy = np.empty((len(idx), n, 2))
+        start = np.empty((len(idx), n, 3))
         heading = np.empty((len(idx), n))
         self._truth[idx] = self._empty_truth
         for k, swarm in enumerate(idx.tolist()):
@@ -268,16 +270,12 @@ class SwarmBatch:
             rng = self.rngs[swarm]
             obstacles = rng.choice(self._n_cells, size=cfg.num_obstacles, replace=False)
             self._truth[swarm, self._inside_flat[obstacles]] = 1
-            xy[k] = rng.random((n, 2)) * self._arena_xy
+            start[k] = sample_start_positions(cfg, rng)[0]  # SwarmConfig.start_region
             heading[k] = rng.uniform(-math.pi, math.pi, n)
         self._map[idx] = -1
         self._covered[idx] = self._uncovered
         kinematics = np.zeros((len(idx), n, PROPRIO_DIM))
-        if positions is None:
-            kinematics[:, :, :2] = xy
-            kinematics[:, :, 2] = cfg.initial_altitude
-        else:
-            kinematics[:, :, :3] = positions
+        kinematics[:, :, :3] = start if positions is None else positions
         kinematics[:, :, 6] = heading
         kinematics[:, :, 7] = cfg.initial_energy
         self.kinematics[idx] = kinematics
@@ -289,6 +287,7 @@ class SwarmBatch:
         self._n_dropouts[idx] = 0
         self._n_link_draws[idx] = 0
         self._reward_terms[idx] = 0.0
+        self._xi_state[idx] = XI_UNSET  # the outage chains restart from their stationary distribution
 
         readings, n_new, _ = self._sense(idx)
         self.n_covered[idx] = n_new
@@ -462,7 +461,12 @@ class SwarmBatch:
                 rng = self.rngs[swarm]
                 rng.standard_normal(out=normals[k])
                 rng.random(out=uniforms[k])
-            links = self.channel.links_from_variates(pos, normals, uniforms)
+            if self.channel.stateful_outages:  # Gilbert-Elliott: xi follows each link's Markov chain
+                xi_state = self._xi_state[idx]
+                links = self.channel.links_from_variates(pos, normals, uniforms, xi_state)
+                self._xi_state[idx] = xi_state  # advanced in place on the gathered copy
+            else:
+                links = self.channel.links_from_variates(pos, normals, uniforms)
         else:
             links = self.channel.sample(pos, None)
         self._links[idx] = links

@@ -45,11 +45,14 @@ Model (units: metres, seconds of ``dt``; the arena is ``[0, X] x [0, Y]`` with `
   floor(y / cell_size))``; each reading is flipped with probability ``sensor_flip_prob``. ``M_hat`` keeps the latest
   reading of every sensed cell (two UAVs reading one cell at one step: the higher agent index wins); the coverage set
   C is the set of cells observed at least once. Sensing happens at reset and after every move.
-* Links: drawn from :class:`~sb3_latentswarm.channel.A2AChannel` at the reset positions and after every move.
+* Links: drawn from :class:`~sb3_latentswarm.channel.A2AChannel` at the reset positions and after every move; with
+  ``outage_model="gilbert_elliott"`` the env keeps the per-link outage state, restarted at every reset.
 * Step counting: ``reset`` is t = 0, the k-th ``step`` is t = k. An episode already fully covered at reset ends
   (``terminated``) at its first step.
 
-Scenario hooks (documented for tests and examples): ``reset(options={"positions": p})`` starts the UAVs at ``p``
+Start positions: drawn by :func:`~sb3_latentswarm.envs.start_positions.sample_start_positions` from
+``SwarmConfig.start_region`` (uniform over the arena, the default, or a common corner launch area). Scenario hooks
+(documented for tests and examples): ``reset(options={"positions": p})`` starts the UAVs at ``p``
 (shape (N, 3), metres) instead of random positions; :meth:`SwarmReconEnv.set_positions` teleports them
 mid-episode (the next ``step`` moves from there and senses); :attr:`SwarmReconEnv.reward_terms` holds the
 unweighted ``(r_cov, r_red, r_coll)`` of the last step. Other ``options`` keys are ignored.

@@ -55,6 +55,7 @@ __all__ = [
     "outage_thresholds",
     "outage_transition_probabilities",
     "sample_rician_power",
+    "squared_distances",
     "step_link_outages",
     "usable_link_range",
 ]
@@ -144,6 +145,12 @@ def _check_positions(positions: Any) -> np.ndarray:
     if not np.isfinite(pos).all():
         raise ValueError(f"positions must be finite, got non-finite values in an array of shape {pos.shape}")
     return pos
+
+
+def squared_distances(positions: np.ndarray) -> np.ndarray:
+    """Squared 3D distances ``d_ij^2`` in m^2 between all UAV pairs, (..., N, N), from positions (..., N, 3)."""
+    diff = positions[..., :, None, :] - positions[..., None, :, :]
+    return (diff * diff).sum(axis=-1)
 
 
 def _rician_k(config: SwarmConfig, mean_altitude: np.ndarray | float | None) -> np.ndarray | float:
@@ -257,15 +264,19 @@ class A2AChannel:
             if self.link_mode == "full":
                 return np.broadcast_to(self._offdiag_mask(n), pos.shape[:-1] + (n,)).copy()
             if self.link_mode == "full_in_range":
-                diff = pos[..., :, None, :] - pos[..., None, :, :]
-                return ((diff * diff).sum(axis=-1) <= self.link_range**2) & self._offdiag_mask(n)
+                return (squared_distances(pos) <= self.link_range**2) & self._offdiag_mask(n)
             return np.zeros(pos.shape[:-1] + (n,), dtype=bool)
         normals = rng.standard_normal(pos.shape[:-1] + (n, 2))
         uniforms = rng.random(pos.shape[:-1] + (n + 1,))
         return self.links_from_variates(pos, normals, uniforms, xi_state)
 
     def links_from_variates(
-        self, positions: np.ndarray, normals: np.ndarray, uniforms: np.ndarray, xi_state: np.ndarray | None = None
+        self,
+        positions: np.ndarray,
+        normals: np.ndarray,
+        uniforms: np.ndarray,
+        xi_state: np.ndarray | None = None,
+        distances2: np.ndarray | None = None,
     ) -> np.ndarray:
         """The link matrix of Eq. (1) (``link_mode="channel"``) from the standard variates that :meth:`sample` draws.
 
@@ -276,12 +287,14 @@ class A2AChannel:
         :param normals: standard normals, (..., N, N, 2): the fading of every directed link.
         :param uniforms: U(0, 1) variates, (..., N, N + 1): ``xi`` from the first ``N`` columns, ``I`` from the last.
         :param xi_state: the outage state (..., N, N), advanced in place (see :meth:`sample`).
+        :param distances2: :func:`squared_distances` of ``positions`` if the caller has them already.
         :return: boolean link matrix (..., N, N).
         """
         pos = positions
         n = pos.shape[-2]
-        diff = pos[..., :, None, :] - pos[..., None, :, :]
-        d2 = np.maximum((diff * diff).sum(axis=-1), self._min_d2)  # squared 3D distance, clamped at d_min^2
+        if distances2 is None:
+            distances2 = squared_distances(pos)
+        d2 = np.maximum(distances2, self._min_d2)  # squared 3D distance, clamped at d_min^2
         d_alpha = d2 if self._half_alpha == 1.0 else d2**self._half_alpha  # path loss d^alpha
         z, u = normals, uniforms
         # Eq. (1): Gamma >= beta_th  <=>  2(K+1)|h|^2 >= 2(K+1) beta_th (sigma2 + I_i) d^alpha / (P L_atm)
@@ -343,8 +356,7 @@ class A2AChannel:
         """
         pos = _check_positions(positions)
         n = pos.shape[-2]
-        diff = pos[..., :, None, :] - pos[..., None, :, :]
-        d = np.sqrt(np.maximum((diff * diff).sum(axis=-1), self._min_d2))  # 3D distance in metres, >= d_min
+        d = np.sqrt(np.maximum(squared_distances(pos), self._min_d2))  # 3D distance in metres, >= d_min
         interference = np.asarray(draws.interference, dtype=np.float64)[..., :, None]
         # Eq. (1): SINR = P / (sigma2 + I) * |h|^2 * d^-alpha * L_atm * xi
         gamma = (

@@ -37,7 +37,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import seeding
 
-from sb3_latentswarm.channel import XI_UNSET, A2AChannel
+from sb3_latentswarm.channel import XI_UNSET, A2AChannel, squared_distances
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.envs.start_positions import sample_start_positions
 
@@ -92,6 +92,11 @@ def agent_action_space() -> spaces.Box:
     return spaces.Box(-1.0, 1.0, (4,), np.float32)
 
 
+#: Swarm selection of the internals: an index array, or :data:`ALL` (a slice: views instead of gathered copies).
+Swarms = np.ndarray | slice
+ALL = slice(None)
+
+
 def _read_only(array: np.ndarray) -> np.ndarray:
     array.flags.writeable = False
     return array
@@ -137,7 +142,8 @@ class SwarmBatch:
         self._energy_eps = ENERGY_EPS * config.initial_energy
         self._inv_peers = 1.0 / (n - 1) if n > 1 else 0.0
         self._d_safe2 = config.d_safe**2
-        self._pair_i, self._pair_j = np.triu_indices(n, 1)
+        self._pairs = np.triu(np.ones((n, n), dtype=bool), 1)  # i < j
+        self._milestone = COVERAGE_MILESTONE * config.n_cells
         self._max_cell = np.array([width - 1, height - 1], dtype=np.intp)
         self._inv_cell_size = 1.0 / config.cell_size
         self._flip_prob = config.sensor_flip_prob
@@ -156,7 +162,7 @@ class SwarmBatch:
         self._inside_flat = np.flatnonzero(inside.ravel())  # padded index of the cell iy * W + ix, (H*W,)
         self._interior = (slice(None), slice(r, r + height), slice(r, r + width))
         self._swarm_offset = np.arange(b, dtype=np.intp) * self._pad_size  # row b of the flat (B * pad_size) grids
-        self._all = np.arange(b)
+        self._every_swarm = list(range(b))
         self._empty_truth = np.where(inside.ravel(), 0, -1).astype(np.int8)  # padded M without obstacles
         self._uncovered = ~inside.ravel()  # padded C at reset (only the border counts as covered)
 
@@ -253,17 +259,18 @@ class SwarmBatch:
         :param positions: start positions in metres, (len(swarms), N, 3), instead of random ones (the random ones
             are still drawn, so the RNG advances the same way).
         """
-        idx = self._all if swarms is None else np.asarray(swarms, dtype=np.intp).reshape(-1)
-        if seeds is not None and len(seeds) != len(idx):
-            raise ValueError(f"seeds must give one seed per reset swarm ({len(idx)}), got {len(seeds)}")
+        idx = ALL if swarms is None else np.asarray(swarms, dtype=np.intp).reshape(-1)
+        listed = self._listed(idx)
+        if seeds is not None and len(seeds) != len(listed):
+            raise ValueError(f"seeds must give one seed per reset swarm ({len(listed)}), got {len(seeds)}")
         if positions is not None:
-            positions = self.check_positions(positions, len(idx))
+            positions = self.check_positions(positions, len(listed))
         cfg = self.config
         n = self.n_agents
-        start = np.empty((len(idx), n, 3))
-        heading = np.empty((len(idx), n))
+        start = np.empty((len(listed), n, 3))
+        heading = np.empty((len(listed), n))
         self._truth[idx] = self._empty_truth
-        for k, swarm in enumerate(idx.tolist()):
+        for k, swarm in enumerate(listed):
             seed = None if seeds is None else seeds[k]
             if seed is not None or self.rngs[swarm] is None:
                 self.rngs[swarm], self.seeds[swarm] = seeding.np_random(seed)
@@ -274,7 +281,7 @@ class SwarmBatch:
             heading[k] = rng.uniform(-math.pi, math.pi, n)
         self._map[idx] = -1
         self._covered[idx] = self._uncovered
-        kinematics = np.zeros((len(idx), n, PROPRIO_DIM))
+        kinematics = np.zeros((len(listed), n, PROPRIO_DIM))
         kinematics[:, :, :3] = start if positions is None else positions
         kinematics[:, :, 6] = heading
         kinematics[:, :, 7] = cfg.initial_energy
@@ -291,7 +298,7 @@ class SwarmBatch:
 
         readings, n_new, _ = self._sense(idx)
         self.n_covered[idx] = n_new
-        self.steps_to_90[idx] = np.where(n_new >= COVERAGE_MILESTONE * self._n_cells, 0, -1)
+        self.steps_to_90[idx] = np.where(n_new >= self._milestone, 0, -1)
         self._draw_links(idx)
         self._observe(idx, readings)
 
@@ -331,15 +338,15 @@ class SwarmBatch:
         energy = cfg.initial_energy - cfg.energy_decay * self.t  # b_t = b_0 - kappa t, from t (no accumulated rounding)
         kinematics[:, :, 7] = np.maximum(energy, 0.0)[:, None]
 
-        readings, n_new, n_redundant = self._sense(self._all)
+        readings, n_new, n_redundant = self._sense(ALL)
         # Eq. r_cov: r_cov = |C(M_hat_t)| - |C(M_hat_{t-1})| - c
         r_cov = n_new - cfg.stall_penalty
         self.n_covered += n_new
         # Eq. r_red: r_red = -sum_{i<j} |C_t^i ∩ C_t^j|, C_t^i = cells of UAV i's footprint not in C(M_hat_{t-1})
         r_red = -n_redundant
         # Eq. r_coll: r_coll = -sum_{i<j} 1[||p_t^i - p_t^j|| < d_safe]   (3D distance)
-        diff = pos[:, self._pair_i] - pos[:, self._pair_j]  # (B, pairs, 3)
-        n_close = np.count_nonzero(np.einsum("bpk,bpk->bp", diff, diff) < self._d_safe2, axis=1)
+        distances2 = squared_distances(pos)  # (B, N, N), also the channel's d^2
+        n_close = ((distances2 < self._d_safe2) & self._pairs).sum(axis=(1, 2))
         r_coll = -n_close.astype(np.float64)
         # Sec. II-B: r_t = w_cov r_cov + w_red r_red + w_coll r_coll, shared by all UAVs of a swarm
         reward = cfg.w_cov * r_cov + cfg.w_red * r_red + cfg.w_coll * r_coll
@@ -348,11 +355,11 @@ class SwarmBatch:
         self._reward_terms[:, 2] = r_coll
         self.collisions += n_close
         self.episode_return += reward
-        reached = (self.steps_to_90 < 0) & (self.n_covered >= COVERAGE_MILESTONE * self._n_cells)
-        self.steps_to_90[reached] = self.t[reached]
+        reached = (self.n_covered >= self._milestone) & (self.steps_to_90 < 0)
+        np.copyto(self.steps_to_90, self.t, where=reached)
 
-        self._draw_links(self._all)
-        self._observe(self._all, readings)
+        self._draw_links(ALL, distances2)
+        self._observe(ALL, readings)
 
         terminated = (energy <= self._energy_eps) | (self.n_covered == self._n_cells)  # depleted or all covered
         truncated = ~terminated & (self.t >= cfg.max_steps)
@@ -414,23 +421,26 @@ class SwarmBatch:
         return f"agent uav_{agent}" if self.n_swarms == 1 else f"agent uav_{agent} of swarm {swarm}"
 
     # ------------------------------------------------------------------ internals
-    def _sense(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _listed(self, idx: Swarms) -> list[int]:
+        return self._every_swarm if isinstance(idx, slice) else idx.tolist()
+
+    def _sense(self, idx: Swarms) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Sense at the current positions of swarms ``idx`` and update their M_hat and C.
 
         :return: the readings (K, N, F*F) int8, the number of newly covered cells (K,) and
-            sum_{i<j} |C^i ∩ C^j| over them (K,), K = len(idx).
+            sum_{i<j} |C^i ∩ C^j| over them (K,), K = the number of swarms in ``idx``.
         """
         cell = (self.kinematics[idx, :, :2] * self._inv_cell_size).astype(np.intp)  # floor: positions are >= 0
         np.minimum(cell, self._max_cell, out=cell)
         center = cell @ self._cell_stride  # iy * W_pad + ix, (K, N)
         footprint = center[:, :, None] + self._footprint_offsets  # (K, N, F*F) padded indices
         self.footprint[idx] = footprint
-        flat = footprint + self._swarm_offset[idx, None, None]  # indices into the flat (B * pad_size) grids
+        flat = footprint + self._swarm_offset[idx][:, None, None]  # indices into the flat (B * pad_size) grids
         readings = self._truth.reshape(-1)[flat]  # -1 outside the arena
         if self._flip_prob > 0.0:
             # Noisy P_o: each reading inside the arena is flipped with probability sensor_flip_prob
             draws = np.empty(readings.shape)
-            for k, swarm in enumerate(idx.tolist()):
+            for k, swarm in enumerate(self._listed(idx)):
                 self.rngs[swarm].random(out=draws[k])
             readings ^= draws < self._flip_prob
             np.maximum(readings, -1, out=readings)  # a flipped outside reading (-1 ^ 1 = -2) stays -1
@@ -439,7 +449,7 @@ class SwarmBatch:
         self._map.reshape(-1)[flat] = readings  # latest reading wins (the higher agent index)
         n_swarms = self.n_swarms
         if fresh.size == 0:
-            zeros = np.zeros(len(idx), dtype=np.int64)
+            zeros = np.zeros(len(readings), dtype=np.int64)
             return readings, zeros, zeros.astype(np.float64)
         fresh.sort()
         # rank of each entry among the observers of its cell: 0, 1, ..., k - 1 (they sum to k (k - 1) / 2 pairs)
@@ -450,23 +460,26 @@ class SwarmBatch:
         n_redundant = np.bincount(fresh // self._pad_size, weights=rank, minlength=n_swarms)[idx]
         return readings, n_new, n_redundant
 
-    def _draw_links(self, idx: np.ndarray) -> None:
-        """Draw the link matrices of swarms ``idx`` at their current positions and update the link statistics."""
+    def _draw_links(self, idx: Swarms, distances2: np.ndarray | None = None) -> None:
+        """Draw the link matrices of swarms ``idx`` at their current positions and update the link statistics.
+
+        :param distances2: their squared pairwise distances, if computed already.
+        """
         pos = self.kinematics[idx, :, :3]
         if self.channel.link_mode == "channel":
             n = self.n_agents
-            normals = np.empty((len(idx), n, n, 2))
-            uniforms = np.empty((len(idx), n, n + 1))
-            for k, swarm in enumerate(idx.tolist()):
+            normals = np.empty((len(pos), n, n, 2))
+            uniforms = np.empty((len(pos), n, n + 1))
+            for k, swarm in enumerate(self._listed(idx)):
                 rng = self.rngs[swarm]
                 rng.standard_normal(out=normals[k])
                 rng.random(out=uniforms[k])
             if self.channel.stateful_outages:  # Gilbert-Elliott: xi follows each link's Markov chain
                 xi_state = self._xi_state[idx]
-                links = self.channel.links_from_variates(pos, normals, uniforms, xi_state)
-                self._xi_state[idx] = xi_state  # advanced in place on the gathered copy
+                links = self.channel.links_from_variates(pos, normals, uniforms, xi_state, distances2)
+                self._xi_state[idx] = xi_state  # advanced in place (on a copy when idx gathers swarms)
             else:
-                links = self.channel.links_from_variates(pos, normals, uniforms)
+                links = self.channel.links_from_variates(pos, normals, uniforms, distances2=distances2)
         else:
             links = self.channel.sample(pos, None)
         self._links[idx] = links
@@ -477,18 +490,19 @@ class SwarmBatch:
         self._n_link_draws[idx] += 1
         self._n_dropouts[idx] += dropout
 
-    def _observe(self, idx: np.ndarray, readings: np.ndarray) -> None:
+    def _observe(self, idx: Swarms, readings: np.ndarray) -> None:
         """Write the observations of swarms ``idx`` into fresh arrays (earlier ones stay as they were handed out)."""
-        partial = len(idx) != self.n_swarms
         # e_t = [x/X, y/Y, (z - z_min)/(z_max - z_min), vx/v_max, vy/v_max, vz/vz_max, chi/pi, b/b_0]
-        proprio = ((self.kinematics[idx] - self._proprio_offset) * self._proprio_scale).astype(np.float32)
+        kinematics = self.kinematics[idx]
+        proprio = np.empty(kinematics.shape, dtype=np.float32)
+        np.multiply(kinematics - self._proprio_offset, self._proprio_scale, out=proprio)
         link_rows = self._links[idx].astype(np.float32)
         global_map = self._map.reshape(self.n_swarms, self._pad_height, self._pad_width)[idx][self._interior]
         fresh = {"local_obs": readings, "proprio": proprio, "link_rows": link_rows, "global_map": global_map}
-        for name, value in fresh.items():
-            if partial:
+        for name, rows in fresh.items():
+            if isinstance(idx, slice):  # every swarm: the new arrays replace the old ones
+                array = np.ascontiguousarray(rows)  # copies the (strided) map interior only
+            else:  # some swarms: a copy of the old array with their rows replaced
                 array = getattr(self, name).copy()
-                array[idx] = value
-            else:
-                array = np.ascontiguousarray(value)
+                array[idx] = rows
             setattr(self, name, _read_only(array))

@@ -1,9 +1,17 @@
-"""Training throughput: LatentSwarmPPO against sb3-contrib RecurrentPPO("MultiInputLstmPolicy") on the same VecEnv.
+"""Training throughput: LatentSwarmPPO against sb3-contrib RecurrentPPO("MultiInputLstmPolicy") on the same VecEnv,
+or (``--backends``) one whole update of a preset with each ``make_vec_env`` backend.
 
-Both train on ``make_vec_env`` with the paper's observation sizes (50x50 map, N = 3) and the same hidden size, rollout
-length, minibatch size (in agent-steps) and number of epochs. Prints agent-steps per second and their ratio.
+Default mode: both algorithms train on ``make_vec_env`` with the paper's observation sizes (50x50 map, N = 3) and the
+same hidden size, rollout length, minibatch size (in agent-steps) and number of epochs. Prints agent-steps per second
+and their ratio.
+
+``--backends``: ``LatentSwarmPPO`` with the preset's settings (default ``fast``) on the ``"supersuit"`` and the
+``"batched"`` backend (same seed, hence the same episodes), updates timed in alternation after one warm-up update
+each; reports the rollout (env + policy), the training and the whole update in per-thread CPU seconds (torch runs on
+this one thread) and wall seconds, and the ratio of the whole update (target >= 1.25x on ``fast``).
 
     python benchmarks/train_throughput.py --hidden 64 --n-envs 8 --n-steps 128 --iterations 3
+    python benchmarks/train_throughput.py --backends --preset fast --iterations 2 --threads 1
 """
 
 from __future__ import annotations
@@ -16,6 +24,8 @@ from sb3_contrib import RecurrentPPO
 
 from sb3_latentswarm import LatentSwarmPPO, SwarmConfig
 from sb3_latentswarm.envs import make_vec_env
+from sb3_latentswarm.envs.vec_env import BACKENDS
+from sb3_latentswarm.presets import PRESETS, get_preset
 
 
 def measure(model, total_timesteps: int) -> float:
@@ -23,6 +33,68 @@ def measure(model, total_timesteps: int) -> float:
     start = time.perf_counter()
     model.learn(total_timesteps=total_timesteps, reset_num_timesteps=True)
     return model.num_timesteps / (time.perf_counter() - start)
+
+
+class UpdateTimer:
+    """A ``LatentSwarmPPO`` of a preset on one backend, with the CPU and wall time of its rollouts and trainings."""
+
+    def __init__(self, preset_name: str, backend: str) -> None:
+        preset = get_preset(preset_name)
+        env = make_vec_env(preset.n_envs, config=preset.config, seed=0, backend=backend)
+        self.model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=0, device="cpu", **preset.algo_kwargs)
+        self.per_update = preset.algo_kwargs["n_steps"] * preset.n_envs * preset.config.n_agents
+        self.times = {"rollout": [0.0, 0.0], "train": [0.0, 0.0]}  # [CPU, wall] seconds
+        self.updates = 0
+        self._timed("collect_rollouts", "rollout")
+        self._timed("train", "train")
+        self.model.learn(self.per_update)  # warm-up update, not counted
+        self.times = {"rollout": [0.0, 0.0], "train": [0.0, 0.0]}
+
+    def _timed(self, method: str, key: str) -> None:
+        original = getattr(self.model, method)
+
+        def wrapper(*args, **kwargs):
+            cpu, wall = time.thread_time(), time.perf_counter()
+            result = original(*args, **kwargs)
+            self.times[key][0] += time.thread_time() - cpu
+            self.times[key][1] += time.perf_counter() - wall
+            return result
+
+        setattr(self.model, method, wrapper)
+
+    def update(self) -> None:
+        self.model.learn(self.per_update, reset_num_timesteps=False)
+        self.updates += 1
+
+    def seconds(self, key: str, clock: int) -> float:
+        """Seconds per update of ``key`` ("rollout", "train" or "update") on clock 0 (CPU) or 1 (wall)."""
+        if key == "update":
+            return (self.times["rollout"][clock] + self.times["train"][clock]) / self.updates
+        return self.times[key][clock] / self.updates
+
+
+def compare_backends(preset_name: str, iterations: int) -> None:
+    timers = {backend: UpdateTimer(preset_name, backend) for backend in BACKENDS}
+    for _ in range(iterations):  # alternate, so a change of machine load hits both
+        for timer in timers.values():
+            timer.update()
+    per_update = timers["batched"].per_update
+    print(f"preset {preset_name}: {per_update:,} agent-steps per update, {iterations} update(s) per backend, "
+          f"torch {th.get_num_threads()} thread(s)")
+    print("| backend | rollout s (CPU) | train s (CPU) | update s (CPU) | update s (wall) | agent-steps/s (CPU) |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for backend, timer in timers.items():
+        update = timer.seconds("update", 0)
+        print(
+            f"| {backend} | {timer.seconds('rollout', 0):.2f} | {timer.seconds('train', 0):.2f} | {update:.2f} | "
+            f"{timer.seconds('update', 1):.2f} | {per_update / update:,.0f} |"
+        )
+    batched, supersuit = timers["batched"], timers["supersuit"]
+    ratio_cpu = supersuit.seconds("update", 0) / batched.seconds("update", 0)
+    ratio_wall = supersuit.seconds("update", 1) / batched.seconds("update", 1)
+    rollout = supersuit.seconds("rollout", 0) / batched.seconds("rollout", 0)
+    print(f"whole update, batched vs supersuit: {ratio_cpu:.2f}x (CPU), {ratio_wall:.2f}x (wall)")
+    print(f"rollout alone: {rollout:.2f}x (CPU)")
 
 
 def main() -> None:
@@ -34,9 +106,14 @@ def main() -> None:
     parser.add_argument("--n-epochs", type=int, default=4)
     parser.add_argument("--iterations", type=int, default=3, help="rollout/update iterations timed")
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    parser.add_argument("--backends", action="store_true", help="compare the vec env backends on a preset's update")
+    parser.add_argument("--preset", default="fast", choices=sorted(PRESETS), help="preset of --backends")
     args = parser.parse_args()
     if args.threads:
         th.set_num_threads(args.threads)
+    if args.backends:
+        compare_backends(args.preset, args.iterations)
+        return
 
     config = SwarmConfig()
     batch_size = config.n_agents * args.chunk_length * 4

@@ -385,3 +385,33 @@ def test_files_of_another_save_format_fail_clearly(tmp_path):
     foreign = rewrite(lambda d: d.pop("save_format"), tmp_path / "foreign.zip")
     with pytest.raises(ValueError, match="not saved by LatentSwarmPPO"):
         LatentSwarmPPO.load(foreign)
+
+
+def test_compiled_latent_step_matches_eager_and_is_saved(tmp_path):
+    model = make_model(compile_latent_step=True)
+    assert model.policy._compiled_latent_step is not None  # compiled lazily, at the first call
+    model.save(tmp_path / "compiled")
+    loaded = LatentSwarmPPO.load(tmp_path / "compiled", env=model.env)
+    assert loaded.compile_latent_step and loaded.policy._compiled_latent_step is not None
+    assert make_model().policy._compiled_latent_step is None  # off by default
+
+    # The graph capture (TorchDynamo; the "eager" backend skips the slow code generation) gives eager's numbers.
+    eager = make_model().policy
+    compiled = copy.deepcopy(eager)
+    compiled.compile_latent_step(backend="eager")
+    obs = random_obs(eager, n_swarms=2, n_agents=3, seed=1)
+    starts = th.tensor([1.0, 0.0, 0.0, 0.0, 1.0, 0.0])
+    outputs = []
+    for policy in (eager, compiled):
+        state = LatentState(*(s.requires_grad_() for s in random_state(policy, 6, seed=2)))
+        step = policy.latent_step(obs, state, starts)
+        loss = sum(field.square().sum() for field in step.state) + step.predicted_message.sum()
+        grads = th.autograd.grad(loss, [*policy.parameters(), state.map_state], allow_unused=True)
+        outputs.append((step, grads))
+    (step_e, grads_e), (step_c, grads_c) = outputs
+    for a, b in zip(step_e.state, step_c.state):
+        assert th.allclose(a, b, atol=1e-6)
+    assert th.equal(step_e.has_message, step_c.has_message)
+    assert [g is None for g in grads_e] == [g is None for g in grads_c]  # the heads are not part of the step
+    for a, b in zip(grads_e, grads_c):
+        assert a is None or th.allclose(a, b, atol=1e-6)

@@ -67,7 +67,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.config import SwarmConfig, resolve_config
 from sb3_latentswarm.envs.batched_core import (
     ACTOR_OBS_KEYS,
     OBS_KEYS,
@@ -97,14 +97,8 @@ class SwarmReconEnv(ParallelEnv):
     metadata = {"name": "swarm_recon_v0", "render_modes": ["human", "rgb_array"], "render_fps": 10, "is_parallelizable": True}
 
     def __init__(self, config: SwarmConfig | None = None, render_mode: str | None = None, **overrides: Any) -> None:
-        if config is None:
-            config = SwarmConfig()
-        elif not isinstance(config, SwarmConfig):
-            raise TypeError(f"config must be a SwarmConfig or None, got {type(config).__name__} ({config!r})")
-        if overrides:
-            config = config.replace(**overrides)
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
+        config = resolve_config(config, **overrides)
+        self.check_render_mode(render_mode)
         self.config = config
         self.render_mode = render_mode
         self.n_agents = n = config.n_agents
@@ -118,6 +112,12 @@ class SwarmReconEnv(ParallelEnv):
         self._last_obs: dict[str, dict[str, np.ndarray]] = {}
         self._figure: Any = None
         self._image: Any = None
+
+    @classmethod
+    def check_render_mode(cls, render_mode: str | None) -> None:
+        """Raise ``ValueError`` unless ``render_mode`` is ``None`` or one of ``metadata["render_modes"]``."""
+        if render_mode is not None and render_mode not in cls.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or one of {cls.metadata['render_modes']}, got {render_mode!r}")
 
     # ------------------------------------------------------------------ PettingZoo API
     def observation_space(self, agent: str) -> spaces.Dict:

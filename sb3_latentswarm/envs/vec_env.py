@@ -50,7 +50,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvO
 from supersuit.vector import ConcatVecEnv, ProcConcatVec
 from supersuit.vector.multiproc_vec import decompress_info, numpy_deepcopy
 
-from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.config import SwarmConfig, resolve_config
 from sb3_latentswarm.envs.batched_core import (
     OBS_KEYS,
     SWARM_ATTRIBUTES,
@@ -228,9 +228,7 @@ class BatchedSwarmVecEnv(_SwarmSeeding, VecEnv):
     """
 
     def __init__(self, config: SwarmConfig, n_swarms: int, seed: int | None = None, render_mode: str | None = None) -> None:
-        modes = SwarmReconEnv.metadata["render_modes"]
-        if render_mode is not None and render_mode not in modes:
-            raise ValueError(f"render_mode must be None or one of {modes}, got {render_mode!r}")
+        SwarmReconEnv.check_render_mode(render_mode)
         self.core = SwarmBatch(config, n_swarms)
         self.config = config
         self.n_agents = config.n_agents
@@ -355,12 +353,7 @@ def make_vec_env(
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     seed = _check_seed(seed)
     render_mode = overrides.pop("render_mode", None)
-    if config is None:
-        config = SwarmConfig()
-    elif not isinstance(config, SwarmConfig):
-        raise TypeError(f"config must be a SwarmConfig or None, got {type(config).__name__} ({config!r})")
-    if overrides:
-        config = config.replace(**overrides)
+    config = resolve_config(config, **overrides)
     if backend == "batched":
         if num_cpus > 1:
             raise ValueError(

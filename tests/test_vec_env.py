@@ -335,3 +335,17 @@ def test_batched_rejects_bad_actions_naming_the_agent_and_swarm():
         vec_env.step(actions)
     with pytest.raises(ValueError, match=r"shape \(6, 4\)"):
         vec_env.step(np.zeros((5, 4), dtype=np.float32))
+
+
+def test_batched_render_tiles_the_pictures_of_the_swarms():
+    vec_env = make_vec_env(2, config=SMALL, seed=0, render_mode="rgb_array", backend="batched")
+    vec_env.reset()
+    vec_env.step(np.zeros((4, 4), dtype=np.float32))
+    env = SwarmReconEnv(SMALL, render_mode="rgb_array")
+    env.reset(seed=1)  # swarm 1 of seed 0
+    env.step({agent: np.zeros(4) for agent in env.agents})
+    images = vec_env.get_images()
+    assert len(images) == 4 and images[2] is images[3]  # one picture per swarm, shared by its slots
+    np.testing.assert_array_equal(images[2], env.render())
+    tiled = vec_env.render()
+    assert tiled.dtype == np.uint8 and tiled.shape[2] == 3 and tiled.shape[0] >= images[0].shape[0]

@@ -80,7 +80,7 @@ from sb3_latentswarm.envs.batched_core import (
     agent_observation_space,
 )
 
-__all__ = ["SwarmReconEnv", "parallel_env", "OBS_KEYS", "ACTOR_OBS_KEYS", "STATE_OBS_KEYS", "PROPRIO_DIM"]
+__all__ = ["SwarmReconEnv", "parallel_env", "render_frame", "OBS_KEYS", "ACTOR_OBS_KEYS", "STATE_OBS_KEYS", "PROPRIO_DIM"]
 
 
 class SwarmReconEnv(ParallelEnv):
@@ -322,7 +322,7 @@ class SwarmReconEnv(ParallelEnv):
             return None
         if not self._last_obs:
             raise RuntimeError("render() called before reset()")
-        frame = self._render_frame()
+        frame = render_frame(self._core, 0)
         if self.render_mode == "rgb_array":
             return frame
         import matplotlib.pyplot as plt  # lazy: matplotlib is only needed to display
@@ -338,50 +338,6 @@ class SwarmReconEnv(ParallelEnv):
         plt.pause(1.0 / self.metadata["render_fps"])
         return None
 
-    _AGENT_COLOURS = np.array(
-        [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189], [140, 86, 75], [227, 119, 194]],
-        dtype=np.float64,
-    )
-
-    def _render_frame(self) -> np.ndarray:
-        width, height = self.config.grid_width, self.config.grid_height
-        px = max(1, 480 // max(width, height))  # pixels per cell
-        estimate = self.global_map
-        truth = self.ground_truth
-        colours = np.empty((height, width, 3))
-        colours[:] = (128, 128, 128)  # unknown
-        colours[estimate == 0] = (245, 245, 245)
-        colours[estimate == 1] = (20, 20, 20)
-        colours[(estimate == -1) & (truth == 1)] = (110, 40, 40)
-        agent_colours = self._AGENT_COLOURS[np.arange(self.n_agents) % len(self._AGENT_COLOURS)]
-        r = self.config.sensor_range
-        rows_padded, cols_padded = np.divmod(self._core.footprint[0], width + 2 * r)  # padded (row, col) per entry
-        for i in range(self.n_agents):
-            iy, ix = rows_padded[i] - r, cols_padded[i] - r
-            keep = (iy >= 0) & (iy < height) & (ix >= 0) & (ix < width)
-            mask = np.zeros((height, width), dtype=bool)
-            mask[iy[keep], ix[keep]] = True
-            colours[mask] = 0.65 * colours[mask] + 0.35 * agent_colours[i]
-        image = np.repeat(np.repeat(colours[::-1], px, axis=0), px, axis=1)  # y axis up
-        img_h, img_w = image.shape[:2]
-        x_max, y_max = self.arena_size
-        positions = self.positions
-        cols = np.clip((positions[:, 0] / x_max * img_w).astype(int), 0, img_w - 1)
-        rows = np.clip(((1.0 - positions[:, 1] / y_max) * img_h).astype(int), 0, img_h - 1)
-        links = self.links
-        for i, j in zip(*np.triu_indices(self.n_agents, 1)):
-            if links[i, j] or links[j, i]:
-                steps = max(abs(cols[i] - cols[j]), abs(rows[i] - rows[j])) + 1
-                line_r = np.linspace(rows[i], rows[j], steps).round().astype(int)
-                line_c = np.linspace(cols[i], cols[j], steps).round().astype(int)
-                image[line_r, line_c] = (0, 200, 0) if links[i, j] and links[j, i] else (230, 200, 0)
-        half = max(1, px // 2 + 1)
-        for i in range(self.n_agents):
-            image[max(rows[i] - half, 0) : rows[i] + half + 1, max(cols[i] - half, 0) : cols[i] + half + 1] = agent_colours[i]
-        bar = np.full((max(4, px), img_w, 3), 60.0)
-        bar[:, : int(round(self.coverage * img_w))] = (0, 150, 220)
-        return np.concatenate([bar, image]).astype(np.uint8)
-
     def close(self) -> None:
         """Close the matplotlib window of ``render_mode="human"``, if any."""
         if self._figure is not None:
@@ -394,3 +350,52 @@ class SwarmReconEnv(ParallelEnv):
 def parallel_env(**kwargs: Any) -> SwarmReconEnv:
     """PettingZoo-style constructor: ``parallel_env(config=..., render_mode=..., **SwarmConfig overrides)``."""
     return SwarmReconEnv(**kwargs)
+
+
+#: Colours of the UAVs in :func:`render_frame` (RGB), cycled when N is larger.
+_AGENT_COLOURS = np.array(
+    [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189], [140, 86, 75], [227, 119, 194]],
+    dtype=np.float64,
+)
+
+
+def render_frame(core: SwarmBatch, swarm: int) -> np.ndarray:
+    """The picture of swarm ``swarm`` of ``core`` as an (H, W, 3) uint8 image (see :meth:`SwarmReconEnv.render`)."""
+    config = core.config
+    width, height = config.grid_width, config.grid_height
+    px = max(1, 480 // max(width, height))  # pixels per cell
+    estimate = core.global_map[swarm]
+    truth = core.ground_truth[swarm]
+    colours = np.empty((height, width, 3))
+    colours[:] = (128, 128, 128)  # unknown
+    colours[estimate == 0] = (245, 245, 245)
+    colours[estimate == 1] = (20, 20, 20)
+    colours[(estimate == -1) & (truth == 1)] = (110, 40, 40)
+    agent_colours = _AGENT_COLOURS[np.arange(core.n_agents) % len(_AGENT_COLOURS)]
+    r = config.sensor_range
+    rows_padded, cols_padded = np.divmod(core.footprint[swarm], width + 2 * r)  # padded (row, col) per entry
+    for i in range(core.n_agents):
+        iy, ix = rows_padded[i] - r, cols_padded[i] - r
+        keep = (iy >= 0) & (iy < height) & (ix >= 0) & (ix < width)
+        mask = np.zeros((height, width), dtype=bool)
+        mask[iy[keep], ix[keep]] = True
+        colours[mask] = 0.65 * colours[mask] + 0.35 * agent_colours[i]
+    image = np.repeat(np.repeat(colours[::-1], px, axis=0), px, axis=1)  # y axis up
+    img_h, img_w = image.shape[:2]
+    x_max, y_max = config.arena_size
+    positions = core.kinematics[swarm, :, :3]
+    cols = np.clip((positions[:, 0] / x_max * img_w).astype(int), 0, img_w - 1)
+    rows = np.clip(((1.0 - positions[:, 1] / y_max) * img_h).astype(int), 0, img_h - 1)
+    links = core.links[swarm]
+    for i, j in zip(*np.triu_indices(core.n_agents, 1)):
+        if links[i, j] or links[j, i]:
+            steps = max(abs(cols[i] - cols[j]), abs(rows[i] - rows[j])) + 1
+            line_r = np.linspace(rows[i], rows[j], steps).round().astype(int)
+            line_c = np.linspace(cols[i], cols[j], steps).round().astype(int)
+            image[line_r, line_c] = (0, 200, 0) if links[i, j] and links[j, i] else (230, 200, 0)
+    half = max(1, px // 2 + 1)
+    for i in range(core.n_agents):
+        image[max(rows[i] - half, 0) : rows[i] + half + 1, max(cols[i] - half, 0) : cols[i] + half + 1] = agent_colours[i]
+    bar = np.full((max(4, px), img_w, 3), 60.0)
+    bar[:, : int(round(core.n_covered[swarm] / config.n_cells * img_w))] = (0, 150, 220)
+    return np.concatenate([bar, image]).astype(np.uint8)

@@ -59,7 +59,7 @@ from sb3_latentswarm.envs.batched_core import (
     agent_action_space,
     agent_observation_space,
 )
-from sb3_latentswarm.envs.swarm_recon import SwarmReconEnv
+from sb3_latentswarm.envs.swarm_recon import SwarmReconEnv, render_frame
 
 __all__ = ["BACKENDS", "BatchedSwarmVecEnv", "SwarmVecEnv", "make_vec_env"]
 
@@ -224,7 +224,7 @@ class BatchedSwarmVecEnv(_SwarmSeeding, VecEnv):
     :param config: the configuration of the swarms.
     :param n_swarms: number of swarms; ``num_envs = n_swarms * n_agents``.
     :param seed: base seed: swarm ``c`` is seeded with ``seed + c`` at the first reset; ``None`` draws a random base.
-    :param render_mode: stored for SB3 (``render_mode`` of every slot); frames come from :class:`SwarmReconEnv`.
+    :param render_mode: ``None`` or ``"rgb_array"``: ``render()`` returns SB3's tiling of every slot's picture.
     """
 
     def __init__(self, config: SwarmConfig, n_swarms: int, seed: int | None = None, render_mode: str | None = None) -> None:
@@ -278,6 +278,12 @@ class BatchedSwarmVecEnv(_SwarmSeeding, VecEnv):
 
     def close(self) -> None:
         """Nothing to release (the swarms live in this process)."""
+
+    def get_images(self) -> list[np.ndarray]:
+        """The picture of the swarm of every slot (:func:`~sb3_latentswarm.envs.swarm_recon.render_frame`), which SB3's
+        ``render()`` tiles; the slots of one swarm share one image."""
+        frames = [render_frame(self.core, swarm) for swarm in range(self.n_swarms)]
+        return [frames[k // self.n_agents] for k in range(self.num_envs)]
 
     # ------------------------------------------------------------------ per-swarm access
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:

@@ -48,7 +48,16 @@ class Preset:
         return dataclasses.replace(self, config=self.config.replace(**config_overrides))
 
 
-def _algo_kwargs(n_steps: int, chunk_length: int, batch_size: int, latent_dim: int, hidden: int, **extra: Any) -> dict:
+MAPPO_TRAINING: dict[str, Any] = dict(normalize_value=True, value_loss="huber", grad_clip="per_group")
+"""The MAPPO habits the CPU presets train with (docs/algorithm.md, "Training options"; measured in
+docs/results/training_options_fast/): the critic's gradient no longer scales down the actor's and the latent losses'."""
+BOUNDED_STD: dict[str, Any] = dict(log_std_bounds=(-5.0, 0.0), log_std_init=-0.5)
+"""Policy std at most 1 (half the action box), initially 0.61: most sampled actions fall inside the box."""
+
+
+def _algo_kwargs(
+    n_steps: int, chunk_length: int, batch_size: int, latent_dim: int, hidden: int, mappo: bool = False, **extra: Any
+) -> dict:
     kwargs: dict[str, Any] = dict(
         n_steps=n_steps,
         chunk_length=chunk_length,
@@ -59,8 +68,11 @@ def _algo_kwargs(n_steps: int, chunk_length: int, batch_size: int, latent_dim: i
             decoder_hidden=hidden,
             critic_hidden=hidden,
             actor_hidden=min(hidden, 64),
+            **(BOUNDED_STD if mappo else {}),
         ),
     )
+    if mappo:
+        kwargs.update(MAPPO_TRAINING)
     kwargs.update(extra)
     return kwargs
 
@@ -100,7 +112,7 @@ def _fast() -> Preset:
         config=config,
         n_envs=n_envs,
         total_timesteps=4_320_000,
-        algo_kwargs=_algo_kwargs(n_steps, 25, 3000, 64, 128, learning_rate=3e-4),
+        algo_kwargs=_algo_kwargs(n_steps, 25, 3000, 64, 128, learning_rate=3e-4, mappo=True),
         baseline_timesteps=600_000,
         description="25x25 cells of 2 m (the paper's 50 m arena), T=300, d=64, 16 envs, 300 updates (~30 min on 2 cores).",
     )
@@ -133,7 +145,7 @@ def _coordination() -> Preset:
         config=config,
         n_envs=n_envs,
         total_timesteps=updates * n_steps * n_envs * config.n_agents,
-        algo_kwargs=_algo_kwargs(n_steps, 20, 1920, 64, 128, learning_rate=3e-4),
+        algo_kwargs=_algo_kwargs(n_steps, 20, 1920, 64, 128, learning_rate=3e-4, mappo=True),
         baseline_timesteps=updates * n_steps * n_envs * config.n_agents,
         eval_episodes=50,
         description="20x20 cells of 2.5 m, corner launch, T=80: message-free heuristics lose 28 points (~20 min, 1 thread).",
@@ -161,7 +173,7 @@ def _smoke() -> Preset:
         config=config,
         n_envs=2,
         total_timesteps=2 * 20 * 2 * 3,
-        algo_kwargs=_algo_kwargs(20, 5, 30, 8, 16, n_epochs=1),
+        algo_kwargs=_algo_kwargs(20, 5, 30, 8, 16, n_epochs=1, mappo=True),
         baseline_timesteps=2 * 3 * 128,
         eval_episodes=2,
         description="Seconds: checks the whole pipeline runs; results mean nothing.",

@@ -55,6 +55,7 @@ __all__ = [
     "outage_thresholds",
     "outage_transition_probabilities",
     "sample_rician_power",
+    "squared_distances",
     "step_link_outages",
     "usable_link_range",
 ]
@@ -146,6 +147,12 @@ def _check_positions(positions: Any) -> np.ndarray:
     return pos
 
 
+def squared_distances(positions: np.ndarray) -> np.ndarray:
+    """Squared 3D distances ``d_ij^2`` in m^2 between all UAV pairs, (..., N, N), from positions (..., N, 3)."""
+    diff = positions[..., :, None, :] - positions[..., None, :, :]
+    return (diff * diff).sum(axis=-1)
+
+
 def _rician_k(config: SwarmConfig, mean_altitude: np.ndarray | float | None) -> np.ndarray | float:
     """K-factor of a pair at mean altitude ``mean_altitude`` (metres); ``config.rician_k`` when the slope is 0."""
     if config.rician_k_altitude_slope == 0.0 or mean_altitude is None:
@@ -235,12 +242,14 @@ class A2AChannel:
         return mask
 
     # ------------------------------------------------------------------ hot path
-    def sample(self, positions: np.ndarray, rng: np.random.Generator, xi_state: np.ndarray | None = None) -> np.ndarray:
+    def sample(
+        self, positions: np.ndarray, rng: np.random.Generator | None, xi_state: np.ndarray | None = None
+    ) -> np.ndarray:
         """Draw the directed link matrix for one step.
 
         Draw order (shared with :meth:`draw`): ``rng.standard_normal(batch + (N, N, 2))`` for the fading, then
         ``rng.random(batch + (N, N + 1))`` whose first ``N`` columns give ``xi`` and last column gives ``I``.
-        No draws are made when ``link_mode`` is ``"full"``, ``"full_in_range"`` or ``"none"``.
+        No draws are made (``rng`` may be ``None``) when ``link_mode`` is ``"full"``, ``"full_in_range"`` or ``"none"``.
 
         :param positions: UAV positions in metres, shape (N, 3) or a batch (B, N, 3).
         :param rng: numpy random generator.
@@ -251,19 +260,43 @@ class A2AChannel:
         """
         pos = _check_positions(positions)
         n = pos.shape[-2]
-        mask = self._offdiag_mask(n)
         if self.link_mode != "channel":
             if self.link_mode == "full":
-                return np.broadcast_to(mask, pos.shape[:-1] + (n,)).copy()
+                return np.broadcast_to(self._offdiag_mask(n), pos.shape[:-1] + (n,)).copy()
             if self.link_mode == "full_in_range":
-                diff = pos[..., :, None, :] - pos[..., None, :, :]
-                return ((diff * diff).sum(axis=-1) <= self.link_range**2) & mask
+                return (squared_distances(pos) <= self.link_range**2) & self._offdiag_mask(n)
             return np.zeros(pos.shape[:-1] + (n,), dtype=bool)
-        diff = pos[..., :, None, :] - pos[..., None, :, :]
-        d2 = np.maximum((diff * diff).sum(axis=-1), self._min_d2)  # squared 3D distance, clamped at d_min^2
+        normals = rng.standard_normal(pos.shape[:-1] + (n, 2))
+        uniforms = rng.random(pos.shape[:-1] + (n + 1,))
+        return self.links_from_variates(pos, normals, uniforms, xi_state)
+
+    def links_from_variates(
+        self,
+        positions: np.ndarray,
+        normals: np.ndarray,
+        uniforms: np.ndarray,
+        xi_state: np.ndarray | None = None,
+        distances2: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """The link matrix of Eq. (1) (``link_mode="channel"``) from the standard variates that :meth:`sample` draws.
+
+        Callers with one random stream per swarm (the batched env) draw the variates swarm by swarm and evaluate the
+        whole batch here.
+
+        :param positions: UAV positions in metres, (..., N, 3), already checked.
+        :param normals: standard normals, (..., N, N, 2): the fading of every directed link.
+        :param uniforms: U(0, 1) variates, (..., N, N + 1): ``xi`` from the first ``N`` columns, ``I`` from the last.
+        :param xi_state: the outage state (..., N, N), advanced in place (see :meth:`sample`).
+        :param distances2: :func:`squared_distances` of ``positions`` if the caller has them already.
+        :return: boolean link matrix (..., N, N).
+        """
+        pos = positions
+        n = pos.shape[-2]
+        if distances2 is None:
+            distances2 = squared_distances(pos)
+        d2 = np.maximum(distances2, self._min_d2)  # squared 3D distance, clamped at d_min^2
         d_alpha = d2 if self._half_alpha == 1.0 else d2**self._half_alpha  # path loss d^alpha
-        z = rng.standard_normal(d2.shape + (2,))
-        u = rng.random(pos.shape[:-1] + (n + 1,))
+        z, u = normals, uniforms
         # Eq. (1): Gamma >= beta_th  <=>  2(K+1)|h|^2 >= 2(K+1) beta_th (sigma2 + I_i) d^alpha / (P L_atm)
         rhs = (self._c_noise + self._c_interf * u[..., n : n + 1]) * d_alpha  # I_i = I_max * u, one per receiver row
         if self.k_slope == 0.0:
@@ -274,7 +307,7 @@ class A2AChannel:
             k = _rician_k(self.config, 0.5 * (alt[..., :, None] + alt[..., None, :]))  # K_ij at mean pair altitude
             lhs = (z[..., 0] + np.sqrt(2.0 * k)) ** 2 + z[..., 1] ** 2
             rhs *= 2.0 * (k + 1.0)
-        return (lhs >= rhs) & self._xi(u[..., :n], xi_state) & mask
+        return (lhs >= rhs) & self._xi(u[..., :n], xi_state) & self._offdiag_mask(n)
 
     def _xi(self, uniforms: np.ndarray, xi_state: np.ndarray | None) -> np.ndarray:
         """xi of this step from its uniforms (..., N, N); advances ``xi_state`` in place for the Markov chain."""
@@ -323,8 +356,7 @@ class A2AChannel:
         """
         pos = _check_positions(positions)
         n = pos.shape[-2]
-        diff = pos[..., :, None, :] - pos[..., None, :, :]
-        d = np.sqrt(np.maximum((diff * diff).sum(axis=-1), self._min_d2))  # 3D distance in metres, >= d_min
+        d = np.sqrt(np.maximum(squared_distances(pos), self._min_d2))  # 3D distance in metres, >= d_min
         interference = np.asarray(draws.interference, dtype=np.float64)[..., :, None]
         # Eq. (1): SINR = P / (sigma2 + I) * |h|^2 * d^-alpha * L_atm * xi
         gamma = (

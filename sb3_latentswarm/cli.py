@@ -80,7 +80,7 @@ def command_train(args: argparse.Namespace) -> int:
     output = Path(args.output or f"runs/{preset.name}")
     output.mkdir(parents=True, exist_ok=True)
     total = args.total_timesteps or preset.total_timesteps
-    env = make_vec_env(preset.n_envs, config=preset.config, seed=args.seed)
+    env = make_vec_env(preset.n_envs, config=preset.config, seed=args.seed, backend=args.backend)
     model = LatentSwarmPPO(
         "LatentSwarmPolicy",
         env,
@@ -217,6 +217,12 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--tensorboard", default=None, help="TensorBoard log folder")
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
     train.add_argument("--verbose", type=int, default=0)
+    train.add_argument(
+        "--backend",
+        default="batched",
+        choices=("batched", "supersuit"),
+        help="vec env backend: 'batched' (default, fast) or 'supersuit' (PettingZoo env via SuperSuit); same episodes",
+    )
     train.set_defaults(func=command_train)
 
     evaluate = sub.add_parser("evaluate", help="evaluate a saved model on the five conditions of Table I")

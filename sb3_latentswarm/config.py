@@ -266,3 +266,15 @@ class SwarmConfig:
                     f"Bernoulli run length) for outage_model='gilbert_elliott' with p_fail={self.p_fail}, got "
                     f"{self.mean_outage_steps}; lower p_fail or raise mean_outage_steps"
                 )
+
+
+def resolve_config(config: SwarmConfig | None = None, **overrides: Any) -> SwarmConfig:
+    """``config`` (``SwarmConfig()`` if ``None``) with ``overrides`` applied: the env constructors' convention.
+
+    :raises TypeError: ``config`` is not a ``SwarmConfig``, or an override is not a field.
+    """
+    if config is None:
+        config = SwarmConfig()
+    elif not isinstance(config, SwarmConfig):
+        raise TypeError(f"config must be a SwarmConfig or None, got {type(config).__name__} ({config!r})")
+    return config.replace(**overrides) if overrides else config

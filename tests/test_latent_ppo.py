@@ -8,6 +8,7 @@ import torch as th
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_latentswarm import LatentSwarmPPO, SwarmConfig
+from sb3_latentswarm.common.buffers import SwarmRolloutBuffer
 from sb3_latentswarm.common.type_aliases import LatentState
 from sb3_latentswarm.envs import make_vec_env
 from sb3_latentswarm.latent_ppo.latent_ppo import auxiliary_losses
@@ -151,9 +152,26 @@ def test_pred_loss_counts_only_communication_steps():
     assert pred_loss_garbage.item() == pytest.approx(pred_loss.item(), rel=1e-6)
 
 
-def collected_model(**kwargs):
-    """A model whose buffer holds one rollout with dropouts and episode ends inside chunks."""
+def collected_model(swarm_keys=None, **kwargs):
+    """A model whose buffer holds one rollout with dropouts and episode ends inside chunks.
+
+    :param swarm_keys: replace the buffer by one storing these keys once per swarm (``None``: the model's own buffer)
+    """
     model = make_model(**kwargs)
+    if swarm_keys is not None:
+        buffer = model.rollout_buffer
+        model.rollout_buffer = SwarmRolloutBuffer(
+            model.n_steps,
+            model.observation_space,
+            model.action_space,
+            latent_dims=buffer.latent_dims,
+            n_agents=buffer.n_agents,
+            chunk_length=buffer.chunk_length,
+            gamma=model.gamma,
+            gae_lambda=model.gae_lambda,
+            n_envs=model.n_envs,
+            swarm_keys=swarm_keys,
+        )
     model.learn(total_timesteps=1, log_interval=None)  # sets up the logger and env, collects one rollout, trains once
     model.collect_rollouts(model.env, _NoCallback(), model.rollout_buffer, model.n_steps)
     return model
@@ -189,6 +207,33 @@ def test_recomputed_log_probs_match_collection():
             max_value_diff = max(max_value_diff, (evaluation.values - batch.old_values).abs().max().item())
     assert max_diff < 1e-5
     assert max_value_diff < 1e-5
+
+
+def test_global_state_stored_once_per_swarm_feeds_identical_losses():
+    per_swarm = collected_model(config=SMALL.replace(max_steps=7))  # the model's buffer: swarm_keys = the global state
+    per_slot = collected_model(swarm_keys=(), config=SMALL.replace(max_steps=7))  # the old layout
+    new, old = per_swarm.rollout_buffer, per_slot.rollout_buffer
+    assert new.swarm_keys == ("swarm_proprio", "global_map") and old.swarm_keys == ()
+    n_agents, n_swarms = new.n_agents, new.n_swarms
+    assert new.observations["global_map"].shape == (20, n_swarms, 10, 10)
+    assert old.observations["global_map"].shape == (20, n_swarms * n_agents, 10, 10)
+    for key in ("swarm_proprio", "global_map"):  # the old layout held n_agents identical copies of each swarm's
+        np.testing.assert_array_equal(np.repeat(new.observations[key], n_agents, axis=1), old.observations[key])
+    saved = sum(old.observations[key].nbytes - new.observations[key].nbytes for key in new.swarm_keys)
+    assert old.nbytes - new.nbytes == saved > 0
+    clip_range = per_swarm.clip_range(1.0)
+    np.random.seed(0)
+    new_batches = list(new.get(per_swarm.batch_size))
+    np.random.seed(0)
+    old_batches = list(old.get(per_slot.batch_size))
+    assert len(new_batches) == len(old_batches) > 1
+    for new_batch, old_batch in zip(new_batches, old_batches):
+        for key, value in old_batch.observations.items():
+            assert th.equal(new_batch.observations[key], value), key
+        new_losses = per_swarm._minibatch_losses(new_batch, clip_range, None)
+        old_losses = per_slot._minibatch_losses(old_batch, clip_range, None)
+        for term, value in old_losses.items():
+            assert th.equal(new_losses[term], value), term
 
 
 def test_one_train_step_reaches_every_parameter_group():
@@ -340,3 +385,33 @@ def test_files_of_another_save_format_fail_clearly(tmp_path):
     foreign = rewrite(lambda d: d.pop("save_format"), tmp_path / "foreign.zip")
     with pytest.raises(ValueError, match="not saved by LatentSwarmPPO"):
         LatentSwarmPPO.load(foreign)
+
+
+def test_compiled_latent_step_matches_eager_and_is_saved(tmp_path):
+    model = make_model(compile_latent_step=True)
+    assert model.policy._compiled_latent_step is not None  # compiled lazily, at the first call
+    model.save(tmp_path / "compiled")
+    loaded = LatentSwarmPPO.load(tmp_path / "compiled", env=model.env)
+    assert loaded.compile_latent_step and loaded.policy._compiled_latent_step is not None
+    assert make_model().policy._compiled_latent_step is None  # off by default
+
+    # The graph capture (TorchDynamo; the "eager" backend skips the slow code generation) gives eager's numbers.
+    eager = make_model().policy
+    compiled = copy.deepcopy(eager)
+    compiled.compile_latent_step(backend="eager")
+    obs = random_obs(eager, n_swarms=2, n_agents=3, seed=1)
+    starts = th.tensor([1.0, 0.0, 0.0, 0.0, 1.0, 0.0])
+    outputs = []
+    for policy in (eager, compiled):
+        state = LatentState(*(s.requires_grad_() for s in random_state(policy, 6, seed=2)))
+        step = policy.latent_step(obs, state, starts)
+        loss = sum(field.square().sum() for field in step.state) + step.predicted_message.sum()
+        grads = th.autograd.grad(loss, [*policy.parameters(), state.map_state], allow_unused=True)
+        outputs.append((step, grads))
+    (step_e, grads_e), (step_c, grads_c) = outputs
+    for a, b in zip(step_e.state, step_c.state):
+        assert th.allclose(a, b, atol=1e-6)
+    assert th.equal(step_e.has_message, step_c.has_message)
+    assert [g is None for g in grads_e] == [g is None for g in grads_c]  # the heads are not part of the step
+    for a, b in zip(grads_e, grads_c):
+        assert a is None or th.allclose(a, b, atol=1e-6)

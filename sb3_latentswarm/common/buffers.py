@@ -8,6 +8,10 @@ hold all agents of a swarm, time-aligned. Like MAPPO's data chunks, the rollout 
 
 Slots are env-major, agent-minor, so ``(n_steps, n_slots)`` arrays reshape to
 ``(n_chunks, chunk_length, n_swarms, n_agents)`` with no copy and no Python loop.
+
+Observation keys that every agent of a swarm receives identically (``swarm_keys``: the global state
+``swarm_proprio`` and ``global_map`` for ``LatentSwarmPPO``) are stored once per swarm, ``(n_steps, n_swarms, ...)``,
+instead of once per slot; the minibatches hand them out per agent-step as before, so the losses do not change.
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ class SwarmRolloutBuffer(DictRolloutBuffer):
     :param gae_lambda: GAE lambda
     :param gamma: discount factor
     :param n_envs: number of vec-env slots (``n_swarms * n_agents``)
+    :param swarm_keys: observation keys equal for all agents of a swarm, stored once per swarm (the first agent's)
     """
 
     def __init__(
@@ -49,6 +54,7 @@ class SwarmRolloutBuffer(DictRolloutBuffer):
         gae_lambda: float = 1.0,
         gamma: float = 0.99,
         n_envs: int = 1,
+        swarm_keys: tuple[str, ...] = (),
     ):
         if n_envs % n_agents != 0:
             raise ValueError(f"n_envs ({n_envs} slots) must be a multiple of n_agents ({n_agents})")
@@ -59,10 +65,17 @@ class SwarmRolloutBuffer(DictRolloutBuffer):
         self.n_swarms = n_envs // n_agents
         self.chunk_length = chunk_length
         self.n_chunks = buffer_size // chunk_length
+        unknown = sorted(set(swarm_keys) - set(observation_space.spaces))
+        if unknown:
+            raise ValueError(f"swarm_keys {unknown} are not keys of the observation space {list(observation_space.spaces)}")
+        self.swarm_keys = tuple(swarm_keys)
         super().__init__(buffer_size, observation_space, action_space, device, gae_lambda, gamma, n_envs)
 
     def reset(self) -> None:
         super().reset()
+        for key in self.swarm_keys:  # (n_steps, n_swarms, ...): one copy per swarm
+            per_slot = self.observations[key]
+            self.observations[key] = np.zeros((self.buffer_size, self.n_swarms, *per_slot.shape[2:]), dtype=per_slot.dtype)
         # (n_chunks, n_slots, dim) per LatentState field
         self.latent_states = [np.zeros((self.n_chunks, self.n_envs, dim), dtype=np.float32) for dim in self.latent_dims]
         self._torch_cache: dict[str, th.Tensor] | None = None
@@ -82,16 +95,31 @@ class SwarmRolloutBuffer(DictRolloutBuffer):
             chunk = self.pos // self.chunk_length
             for stored, field in zip(self.latent_states, latent_state):
                 stored[chunk] = field.detach().cpu().numpy()
+        if self.swarm_keys:
+            obs = dict(obs)
+            for key in self.swarm_keys:
+                obs[key] = obs[key][:: self.n_agents]  # the first agent's copy of each swarm's
         super().add(obs, action, reward, episode_start, value, log_prob)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the stored rollout (observations, actions, rewards, values, ..., latent states)."""
+        arrays = [*self.observations.values(), *self.latent_states]
+        arrays += [getattr(self, name) for name in ("actions", "rewards", "returns", "episode_starts", "values")]
+        arrays += [self.log_probs, self.advantages]
+        return sum(array.nbytes for array in arrays)
 
     def _as_chunked_tensors(self) -> dict[str, th.Tensor]:
         """Move the whole rollout to the device once, shaped (n_chunks, chunk_length, n_swarms, n_agents, ...)."""
         shape = (self.n_chunks, self.chunk_length, self.n_swarms, self.n_agents)
 
-        def chunked(array: np.ndarray) -> th.Tensor:
-            return th.as_tensor(array, device=self.device).reshape(*shape, *array.shape[2:])
+        def chunked(array: np.ndarray, n_agents: int = self.n_agents) -> th.Tensor:
+            return th.as_tensor(array, device=self.device).reshape(*shape[:3], n_agents, *array.shape[2:])
 
-        cache = {f"obs/{key}": chunked(obs) for key, obs in self.observations.items()}
+        # swarm keys get an agent axis of size 1, expanded to n_agents in the minibatches
+        cache = {}
+        for key, obs in self.observations.items():
+            cache[f"obs/{key}"] = chunked(obs, 1 if key in self.swarm_keys else self.n_agents)
         cache["actions"] = chunked(self.actions.astype(np.float32, copy=False))
         for name in ("values", "log_probs", "advantages", "returns", "episode_starts"):
             cache[name] = chunked(getattr(self, name))
@@ -126,9 +154,9 @@ class SwarmRolloutBuffer(DictRolloutBuffer):
         n_seq = len(sequence_inds)
 
         def time_major(tensor: th.Tensor) -> th.Tensor:
-            # (n_chunks, L, n_swarms, n_agents, *rest) -> (n_seq, L, n_agents, *rest) -> (L, n_seq * n_agents, *rest)
+            # (n_chunks, L, n_swarms, n_agents or 1, *rest) -> (n_seq, L, n_agents, *rest) -> (L, n_seq * n_agents, *rest)
             picked = tensor[chunk_idx, :, swarm_idx]
-            picked = picked.transpose(0, 1)
+            picked = picked.transpose(0, 1).expand(-1, -1, self.n_agents, *tensor.shape[4:])
             return picked.reshape(self.chunk_length, n_seq * self.n_agents, *tensor.shape[4:])
 
         observations = {key[4:]: time_major(value) for key, value in cache.items() if key.startswith("obs/")}

@@ -1,13 +1,16 @@
-"""The swarm reconnaissance environment (PettingZoo ``ParallelEnv``) and its SB3 vectorization (SuperSuit)."""
+"""The swarm reconnaissance environment: its batched core, the PettingZoo ``ParallelEnv`` view and the SB3 vec envs."""
 
 from sb3_latentswarm.envs import swarm_recon_v0
+from sb3_latentswarm.envs.batched_core import SwarmBatch
 from sb3_latentswarm.envs.swarm_recon import ACTOR_OBS_KEYS, OBS_KEYS, STATE_OBS_KEYS, SwarmReconEnv, parallel_env
-from sb3_latentswarm.envs.vec_env import SwarmVecEnv, make_vec_env
+from sb3_latentswarm.envs.vec_env import BatchedSwarmVecEnv, SwarmVecEnv, make_vec_env
 
 __all__ = [
     "ACTOR_OBS_KEYS",
+    "BatchedSwarmVecEnv",
     "OBS_KEYS",
     "STATE_OBS_KEYS",
+    "SwarmBatch",
     "SwarmReconEnv",
     "SwarmVecEnv",
     "make_vec_env",

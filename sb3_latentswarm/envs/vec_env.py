@@ -1,8 +1,18 @@
-"""SB3 vectorized environment of ``n_envs`` swarms: SuperSuit's PettingZoo -> SB3 conversion with its traps handled.
+"""SB3 vectorized environments of ``n_envs`` swarms, one slot per agent: two backends over the same simulator core.
 
-``make_vec_env(n_envs)`` returns ``VecMonitor(SwarmVecEnv(concat_vec_envs_v1(pettingzoo_env_to_vec_env_v1(env),
-n_envs, base_class="stable_baselines3")))``. Every agent of every swarm is one SB3 slot, so
-``num_envs = n_envs * n_agents``.
+``make_vec_env(n_envs, backend=...)`` returns a ``VecMonitor`` around one of
+
+* ``"batched"`` (default): :class:`BatchedSwarmVecEnv`, an SB3 ``VecEnv`` directly over
+  :class:`~sb3_latentswarm.envs.batched_core.SwarmBatch`, which steps all swarms with one set of array operations.
+* ``"supersuit"``: :class:`SwarmVecEnv` around SuperSuit's PettingZoo -> SB3 conversion,
+  ``concat_vec_envs_v1(pettingzoo_env_to_vec_env_v1(SwarmReconEnv), n_envs, base_class="stable_baselines3")``: the
+  design's path through the PettingZoo env, one Python env per swarm; it alone runs the copies in several processes
+  (``num_cpus > 1``) and gives access to the :class:`SwarmReconEnv` copies (``swarm_envs``).
+
+Both give the same SB3 view: ``num_envs = n_envs * n_agents``; the same observation keys, dtypes and spaces; the same
+seeding (swarm ``c`` uses ``seed + c``) and therefore the same episodes for the same seed and actions (each swarm draws
+from its own RNG in the same order in both); ``terminal_observation``, ``TimeLimit.truncated`` and ``swarm_summary``
+in the infos of the slots of a finished swarm; ``n_agents``, ``n_swarms``, ``config`` and ``seed()``.
 
 Slot layout: **env-major, agent-minor**. Slot ``k`` is agent ``k % n_agents`` (in ``possible_agents`` order) of swarm
 copy ``k // n_agents``: ``[uav_0 of copy 0, uav_1 of copy 0, ..., uav_0 of copy 1, ...]``; the slots of copy ``c`` are
@@ -21,6 +31,11 @@ Traps of SuperSuit 3.11 + SB3 2.x handled here (see ``/work/shared/LIBRARY_FACTS
   timestep) and its per-slot episode return is the shared swarm return.
 * An episode ends for all slots of a copy at once (the env never removes one agent); those slots' infos then carry
   ``swarm_summary`` and ``terminal_observation``, and the copy restarts.
+
+Differences between the backends: SuperSuit returns ``dones`` as uint8, the batched backend as bool (SB3's
+convention); per-swarm access is ``swarm_envs`` (SuperSuit, serial) or ``get_attr`` / ``env_method`` with the names
+in :data:`~sb3_latentswarm.envs.batched_core.SWARM_ATTRIBUTES` and
+:data:`~sb3_latentswarm.envs.batched_core.SWARM_METHODS` (both backends).
 """
 
 from __future__ import annotations
@@ -35,10 +50,21 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvO
 from supersuit.vector import ConcatVecEnv, ProcConcatVec
 from supersuit.vector.multiproc_vec import decompress_info, numpy_deepcopy
 
-from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.config import SwarmConfig, resolve_config
+from sb3_latentswarm.envs.batched_core import (
+    OBS_KEYS,
+    SWARM_ATTRIBUTES,
+    SWARM_METHODS,
+    SwarmBatch,
+    agent_action_space,
+    agent_observation_space,
+)
 from sb3_latentswarm.envs.swarm_recon import SwarmReconEnv
 
-__all__ = ["SwarmVecEnv", "make_vec_env"]
+__all__ = ["BACKENDS", "BatchedSwarmVecEnv", "SwarmVecEnv", "make_vec_env"]
+
+#: The vec env backends of :func:`make_vec_env`.
+BACKENDS = ("batched", "supersuit")
 
 
 def _check_seed(seed: Any, name: str = "seed") -> int | None:
@@ -54,7 +80,43 @@ class SerialOnlyError(RuntimeError):
     processes (``num_cpus > 1``)."""
 
 
-class SwarmVecEnv(VecEnvWrapper):
+class _SwarmSeeding:
+    """The seeding rule of both backends: swarm ``c`` gets ``seed + c`` at the first reset and after :meth:`seed`;
+    every other reset continues the swarms' RNGs."""
+
+    n_agents: int
+    num_envs: int
+
+    def _init_seeding(self, seed: int | None) -> None:
+        self._pending_seed = _check_seed(seed)
+        self._seeded = False
+
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
+        """Store a base seed; the next ``reset()`` seeds copy ``c`` with ``seed + c`` (random base if ``None``).
+
+        :return: the seed of the copy of every slot.
+        """
+        seed = _check_seed(seed)
+        if seed is None:
+            seed = self._random_seed()
+        self._pending_seed = seed
+        return [seed + k // self.n_agents for k in range(self.num_envs)]
+
+    @staticmethod
+    def _random_seed() -> int:
+        return int(np.random.SeedSequence().generate_state(1)[0])
+
+    def _take_seed(self) -> int | None:
+        """The base seed of this reset (pending, or random at the first reset), or ``None`` to continue the RNGs."""
+        seed = self._pending_seed
+        if seed is None and not self._seeded:
+            seed = self._random_seed()
+        self._pending_seed = None
+        self._seeded = True
+        return seed
+
+
+class SwarmVecEnv(_SwarmSeeding, VecEnvWrapper):
     """Seeds the swarm copies of a SuperSuit SB3 vec env and exposes the swarm layout.
 
     Slots are env-major, agent-minor: slot ``k`` is agent ``k % n_agents`` of copy ``k // n_agents``.
@@ -77,37 +139,14 @@ class SwarmVecEnv(VecEnvWrapper):
         self.n_agents = n_agents
         self.n_swarms = venv.num_envs // n_agents
         self.config = config
-        self._pending_seed = _check_seed(seed)
-        self._seeded = False
+        self._init_seeding(seed)
         super().__init__(venv)
 
-    # ------------------------------------------------------------------ seeding and reset
-    def seed(self, seed: int | None = None) -> Sequence[int | None]:
-        """Store a base seed; the next ``reset()`` seeds copy ``c`` with ``seed + c`` (random base if ``None``).
-
-        :return: the seed of the copy of every slot.
-        """
-        seed = _check_seed(seed)
-        if seed is None:
-            seed = self._random_seed()
-        self._pending_seed = seed
-        return [seed + k // self.n_agents for k in range(self.num_envs)]
-
-    @staticmethod
-    def _random_seed() -> int:
-        return int(np.random.SeedSequence().generate_state(1)[0])
-
+    # ------------------------------------------------------------------ reset and step
     def reset(self) -> VecEnvObs:
         """Reset every copy; reseeds them first after :meth:`seed` and at the first reset."""
-        seed = self._pending_seed
-        if seed is None and not self._seeded:
-            seed = self._random_seed()
-        if seed is None:
-            observations = self.venv.reset()
-        else:
-            observations = self._reset_seeded(seed)
-            self._pending_seed = None
-            self._seeded = True
+        seed = self._take_seed()
+        observations = self.venv.reset() if seed is None else self._reset_seeded(seed)
         self.reset_infos = self.venv.reset_infos
         return observations
 
@@ -176,8 +215,122 @@ class SwarmVecEnv(VecEnvWrapper):
             return False
 
 
+class BatchedSwarmVecEnv(_SwarmSeeding, VecEnv):
+    """An SB3 ``VecEnv`` of ``n_swarms`` swarms stepped together by one :class:`SwarmBatch` (the ``"batched"`` backend).
+
+    Same slots, spaces, seeding, infos and episodes as the SuperSuit backend (see the module docstring); a finished
+    swarm restarts inside :meth:`step_wait`, the others run on.
+
+    :param config: the configuration of the swarms.
+    :param n_swarms: number of swarms; ``num_envs = n_swarms * n_agents``.
+    :param seed: base seed: swarm ``c`` is seeded with ``seed + c`` at the first reset; ``None`` draws a random base.
+    :param render_mode: stored for SB3 (``render_mode`` of every slot); frames come from :class:`SwarmReconEnv`.
+    """
+
+    def __init__(self, config: SwarmConfig, n_swarms: int, seed: int | None = None, render_mode: str | None = None) -> None:
+        SwarmReconEnv.check_render_mode(render_mode)
+        self.core = SwarmBatch(config, n_swarms)
+        self.config = config
+        self.n_agents = config.n_agents
+        self.n_swarms = self.core.n_swarms
+        self.render_mode = render_mode
+        self._actions: np.ndarray | None = None
+        self._init_seeding(seed)
+        super().__init__(self.n_swarms * self.n_agents, agent_observation_space(config), agent_action_space())
+
+    # ------------------------------------------------------------------ VecEnv API
+    def reset(self) -> VecEnvObs:
+        """Reset every swarm; reseeds them first after :meth:`seed` and at the first reset."""
+        seed = self._take_seed()
+        self.core.reset(seeds=None if seed is None else [seed + c for c in range(self.n_swarms)])
+        self.reset_infos = [{} for _ in range(self.num_envs)]
+        return self._observations()
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = actions
+
+    def step_wait(self) -> VecEnvStepReturn:
+        core, n = self.core, self.n_agents
+        actions = np.asarray(self._actions)
+        if actions.shape != (self.num_envs, 4):
+            raise ValueError(f"actions must have shape ({self.num_envs}, 4) (one row per slot), got shape {actions.shape}")
+        reward, terminated, truncated = core.step(core.check_actions(actions.reshape(self.n_swarms, n, 4)))
+        observations = self._observations()
+        done = terminated | truncated
+        coverage, collisions = core.coverage.tolist(), core.collisions.tolist()
+        rates, dropped = core.link_up_rates().ravel().tolist(), core.dropout.ravel().tolist()
+        infos = [
+            {"coverage": coverage[k // n], "collisions": collisions[k // n], "link_up_rate": rates[k], "dropout": dropped[k]}
+            for k in range(self.num_envs)
+        ]
+        if done.any():
+            finished = np.flatnonzero(done)
+            for swarm in finished.tolist():
+                summary = core.swarm_summary(swarm)
+                summary["truncated"] = was_truncated = bool(truncated[swarm])
+                for k in range(swarm * n, (swarm + 1) * n):
+                    infos[k]["swarm_summary"] = dict(summary)
+                    infos[k]["terminal_observation"] = {key: observations[key][k] for key in OBS_KEYS}
+                    infos[k]["TimeLimit.truncated"] = was_truncated
+            core.reset(finished)  # their RNGs continue
+            observations = self._observations()
+        return observations, np.repeat(reward.astype(np.float32), n), np.repeat(done, n), infos
+
+    def close(self) -> None:
+        """Nothing to release (the swarms live in this process)."""
+
+    # ------------------------------------------------------------------ per-swarm access
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        """Per-swarm state (:data:`SWARM_ATTRIBUTES`, e.g. ``positions`` (N, 3)) of the swarm of each slot, or an
+        attribute of this vec env (``config``, ``n_agents``, ``render_mode``, ...) once per slot."""
+        slots = list(self._get_indices(indices))
+        if attr_name in SWARM_ATTRIBUTES:
+            values = getattr(self.core, attr_name)
+            if values.ndim == 1:
+                values = values.tolist()  # Python scalars, as the SwarmReconEnv properties give
+            return [values[k // self.n_agents] for k in slots]
+        if attr_name.startswith("_") or not hasattr(self, attr_name):
+            raise AttributeError(
+                f"{type(self).__name__} has no attribute {attr_name!r}; per-swarm attributes: {list(SWARM_ATTRIBUTES)}"
+            )
+        value = getattr(self, attr_name)
+        return [value for _ in slots]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        """Set an attribute of this vec env (shared by every slot); the per-swarm state is read-only."""
+        if attr_name in SWARM_ATTRIBUTES or attr_name in ("config", "n_agents", "n_swarms", "core"):
+            raise AttributeError(f"{attr_name!r} cannot be set on {type(self).__name__}")
+        setattr(self, attr_name, value)
+
+    def env_method(self, method_name: str, *method_args, indices: VecEnvIndices = None, **method_kwargs) -> list[Any]:
+        """Call a per-swarm method (:data:`SWARM_METHODS`) for the swarm of each slot (once per slot, as SuperSuit)."""
+        if method_name not in SWARM_METHODS:
+            raise AttributeError(f"{type(self).__name__} supports env_method for {list(SWARM_METHODS)}, got {method_name!r}")
+        method = getattr(self.core, method_name)
+        return [method(k // self.n_agents, *method_args, **method_kwargs) for k in self._get_indices(indices)]
+
+    def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
+
+    def _observations(self) -> dict[str, np.ndarray]:
+        """The slot-major observation dict (fresh writable arrays: torch warns about read-only ones)."""
+        core, n, slots = self.core, self.n_agents, self.num_envs
+        return {
+            "local_obs": core.local_obs.reshape(slots, -1).copy(),
+            "proprio": core.proprio.reshape(slots, -1).copy(),
+            "link_row": core.link_rows.reshape(slots, n).copy(),
+            "swarm_proprio": np.repeat(core.proprio, n, axis=0),  # (B * N, N, 8): every agent sees its swarm's
+            "global_map": np.repeat(core.global_map, n, axis=0),
+        }
+
+
 def make_vec_env(
-    n_envs: int, config: SwarmConfig | None = None, seed: int | None = None, num_cpus: int = 0, **overrides: Any
+    n_envs: int,
+    config: SwarmConfig | None = None,
+    seed: int | None = None,
+    num_cpus: int = 0,
+    backend: str = "batched",
+    **overrides: Any,
 ) -> VecMonitor:
     """Build an SB3 ``VecEnv`` of ``n_envs`` swarms, one slot per agent (env-major, agent-minor).
 
@@ -185,16 +338,29 @@ def make_vec_env(
     :param config: the configuration; ``SwarmConfig()`` if ``None``.
     :param seed: base seed: copy ``c`` uses ``seed + c`` (``None``: a random base, copies still differ).
     :param num_cpus: 0 or 1 runs the copies in this process; ``> 1`` runs them in that many processes
-        (SuperSuit, shared memory).
+        (SuperSuit, shared memory; ``backend="supersuit"`` only).
+    :param backend: ``"batched"`` (default: one array program for all swarms, the fast path) or ``"supersuit"``
+        (the PettingZoo env through SuperSuit). Both give the same episodes for the same seed and actions.
     :param overrides: ``SwarmConfig`` fields replacing those of ``config``, and ``render_mode``.
-    :return: ``VecMonitor(SwarmVecEnv(...))``; ``n_agents``, ``n_swarms`` and ``config`` are forwarded attributes.
+    :return: ``VecMonitor(BatchedSwarmVecEnv(...))`` or ``VecMonitor(SwarmVecEnv(...))``; ``n_agents``,
+        ``n_swarms`` and ``config`` are forwarded attributes.
     """
     if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or n_envs < 1:
         raise ValueError(f"n_envs must be an int >= 1, got {n_envs!r}")
     if isinstance(num_cpus, bool) or not isinstance(num_cpus, (int, np.integer)) or num_cpus < 0:
         raise ValueError(f"num_cpus must be an int >= 0, got {num_cpus!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     seed = _check_seed(seed)
-    env = SwarmReconEnv(config, **overrides)
+    render_mode = overrides.pop("render_mode", None)
+    config = resolve_config(config, **overrides)
+    if backend == "batched":
+        if num_cpus > 1:
+            raise ValueError(
+                f"num_cpus={num_cpus} needs backend='supersuit' (the batched backend steps every swarm in this process)"
+            )
+        return VecMonitor(BatchedSwarmVecEnv(config, int(n_envs), seed=seed, render_mode=render_mode))
+    env = SwarmReconEnv(config, render_mode=render_mode)
     venv = ss.concat_vec_envs_v1(
         ss.pettingzoo_env_to_vec_env_v1(env), int(n_envs), num_cpus=int(num_cpus), base_class="stable_baselines3"
     )

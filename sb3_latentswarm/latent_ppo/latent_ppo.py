@@ -33,7 +33,7 @@ from sb3_latentswarm.common.buffers import SwarmRolloutBuffer
 from sb3_latentswarm.common.schedules import paper_learning_rate
 from sb3_latentswarm.common.type_aliases import LatentState
 from sb3_latentswarm.config import SwarmConfig
-from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy, SequenceEvaluation, check_observation_space
+from sb3_latentswarm.latent_ppo.policies import CRITIC_KEYS, LatentSwarmPolicy, SequenceEvaluation, check_observation_space
 from sb3_latentswarm.version import __version__
 
 SelfLatentSwarmPPO = TypeVar("SelfLatentSwarmPPO", bound="LatentSwarmPPO")
@@ -124,6 +124,9 @@ class LatentSwarmPPO(RecurrentPPO):
     :param huber_delta: the Huber loss's threshold, in the critic's units (normalized when ``normalize_value``)
     :param log_grad_norms: log the gradient norm of each weighted loss term (``train/grad_norm_<term>``) on the first
         minibatch of every update (costs one extra backward pass per term and update)
+    :param compile_latent_step: run the policy's per-step latent update through ``torch.compile`` (off by default;
+        see :meth:`LatentSwarmPolicy.compile_latent_step`: faster steps after a one-time compilation of tens of
+        seconds per graph, ``benchmarks/train_throughput.py --compile`` measures both)
     :param target_kl: optional KL early stopping
     :param stats_window_size: episodes averaged in the rollout logs
     :param tensorboard_log: TensorBoard log folder
@@ -161,6 +164,7 @@ class LatentSwarmPPO(RecurrentPPO):
         value_loss: str = "mse",
         huber_delta: float = 10.0,
         log_grad_norms: bool = False,
+        compile_latent_step: bool = False,
         target_kl: float | None = None,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
@@ -222,6 +226,7 @@ class LatentSwarmPPO(RecurrentPPO):
         self.value_loss = value_loss
         self.huber_delta = huber_delta
         self.log_grad_norms = log_grad_norms
+        self.compile_latent_step = bool(compile_latent_step)
         self.n_agents: int | None = None
         self.save_format = SAVE_FORMAT
         self.saved_by_version = __version__
@@ -271,6 +276,8 @@ class LatentSwarmPPO(RecurrentPPO):
         self.policy = self.policy.to(self.device)
         if not isinstance(self.policy, LatentSwarmPolicy):
             raise ValueError("LatentSwarmPPO needs a LatentSwarmPolicy")
+        if self.compile_latent_step:
+            self.policy.compile_latent_step()
         self._setup_rollout_state()
         self.clip_range = FloatSchedule(self.clip_range)
         if self.clip_range_vf is not None:
@@ -295,6 +302,7 @@ class LatentSwarmPPO(RecurrentPPO):
             gamma=self.gamma,
             gae_lambda=self.gae_lambda,
             n_envs=self.n_envs,
+            swarm_keys=CRITIC_KEYS,  # the global state s_t, the same for every agent of a swarm: stored once per swarm
         )
 
     def set_env(self, env: GymEnv, force_reset: bool = True) -> None:

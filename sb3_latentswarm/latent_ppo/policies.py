@@ -19,6 +19,7 @@ The actor side reads only ``local_obs``, ``proprio`` and ``link_row``; the criti
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -209,6 +210,7 @@ class LatentSwarmPolicy(BasePolicy):
         self.critic_head = _mlp([critic_hidden + critic_hidden // 4, critic_hidden, 1], nn.ReLU)
         self.value_normalizer = ValueNorm(beta=value_norm_beta) if self.normalize_value else None
         self.action_dist = DiagGaussianDistribution(self.action_dim)
+        self._compiled_latent_step: Callable[..., StepOutput] | None = None
 
         if ortho_init:
             self._init_weights()
@@ -260,12 +262,26 @@ class LatentSwarmPolicy(BasePolicy):
 
     # ------------------------------------------------------------------ the latent step (Sec. III)
     def latent_step(self, obs: dict[str, th.Tensor], state: LatentState, episode_starts: th.Tensor) -> StepOutput:
-        """One step of every latent update for a batch of whole swarms.
+        """One step of every latent update for a batch of whole swarms (compiled after :meth:`compile_latent_step`).
 
         :param obs: actor observation tensors of step t with leading dim B = n_swarms * n_agents (env-major)
         :param state: the state carried in from step t-1
         :param episode_starts: (B,) 1.0 where obs is the first of an episode: the state is reset to zero there
         """
+        step = self._eager_latent_step if self._compiled_latent_step is None else self._compiled_latent_step
+        return step(obs, state, episode_starts)
+
+    def compile_latent_step(self, **compile_kwargs: Any) -> None:
+        """Run :meth:`latent_step` through ``torch.compile`` from now on (rollouts and training).
+
+        Compilation is lazy: the first call with each new batch size and grad mode compiles (tens of seconds per
+        graph on a CPU with the default inductor backend), later calls reuse the graph.
+
+        :param compile_kwargs: keyword arguments of ``torch.compile`` (e.g. ``backend``, ``mode``)
+        """
+        self._compiled_latent_step = th.compile(self._eager_latent_step, **compile_kwargs)
+
+    def _eager_latent_step(self, obs: dict[str, th.Tensor], state: LatentState, episode_starts: th.Tensor) -> StepOutput:
         keep = (1.0 - episode_starts.float()).unsqueeze(-1)
         map_prev, task_prev, memory_prev, local_prev, message_prev = (field * keep for field in state)
         local_obs = obs["local_obs"].float().flatten(1)  # (B, o_dim)

@@ -184,6 +184,14 @@ def command_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _overrides_of(option: str, pairs: list[str]) -> dict[str, Any]:
+    """:func:`parse_overrides` for another option than ``--set`` (its messages name that option)."""
+    try:
+        return parse_overrides(pairs)
+    except ValueError as error:
+        raise ValueError(str(error).replace("--set", option, 1)) from None
+
+
 def _parse_grid(pairs: list[str]) -> dict[str, list[Any]]:
     """``["p_fail=0.1,0.3"]`` -> ``{"p_fail": [0.1, 0.3]}`` (values typed like ``--set``'s)."""
     grid: dict[str, list[Any]] = {}
@@ -191,7 +199,7 @@ def _parse_grid(pairs: list[str]) -> dict[str, list[Any]]:
         name, _, raw = pair.partition("=")
         if not raw:
             raise ValueError(f"--grid expects FIELD=V1,V2,..., got {pair!r}")
-        grid[name] = [parse_overrides([f"{name}={value}"])[name] for value in raw.split(",")]
+        grid[name] = [_overrides_of("--grid", [f"{name}={value}"])[name] for value in raw.split(",")]
     return grid
 
 
@@ -204,7 +212,7 @@ def _parse_eval_set(text: str):
         raise ValueError(f"--eval-set expects NAME=FIELD=VALUE[,FIELD=VALUE...][,conditions=C1+C2], got {text!r}")
     pairs = raw.split(",")
     conditions = [pair.partition("=")[2] for pair in pairs if pair.startswith("conditions=")]
-    overrides = parse_overrides([pair for pair in pairs if not pair.startswith("conditions=")])
+    overrides = _overrides_of(f"--eval-set {name}", [pair for pair in pairs if not pair.startswith("conditions=")])
     return EvalSet(name, overrides, tuple(conditions[-1].split("+")) if conditions else None)
 
 

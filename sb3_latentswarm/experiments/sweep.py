@@ -176,12 +176,12 @@ def _check_output(output: Path, spec: dict[str, Any], resume: bool) -> None:
         )
 
 
-def _run_trial_in_tune(config: dict[str, Any]) -> None:
+def _run_trial_in_tune(config: dict[str, Any], spec: dict[str, Any], commit: str) -> None:
     """The Ray Tune trainable: one trial, progress reported per rollout, results reported as the final checkpoint."""
     import torch
     from ray import tune
 
-    trial = config["trial"]
+    trial = {**config["trial"], "spec": spec, "commit": commit}
     torch.set_num_threads(trial["threads"])
     work = Path(tempfile.mkdtemp(prefix=f"{trial['trial_id']}-"))
     try:
@@ -216,9 +216,12 @@ def _run_tune(trials: list[dict[str, Any]], output: Path, cpus_per_trial: float,
                 _collect(trial.checkpoint, trials_dir / trial.config["trial"]["trial_id"])
 
     threads = max(1, int(cpus_per_trial))
+    # the trial's own keys go into Tune's config (its console shows them); the shared spec goes by reference
+    shared = {"spec": trials[0]["spec"], "commit": trials[0]["commit"]}
+    own = [{k: v for k, v in trial.items() if k not in shared} | {"threads": threads} for trial in trials]
     tuner = tune.Tuner(
-        tune.with_resources(_run_trial_in_tune, {"cpu": cpus_per_trial}),
-        param_space={"trial": tune.grid_search([{**trial, "threads": threads} for trial in trials])},
+        tune.with_resources(tune.with_parameters(_run_trial_in_tune, **shared), {"cpu": cpus_per_trial}),
+        param_space={"trial": tune.grid_search(own)},
         tune_config=tune.TuneConfig(
             trial_name_creator=lambda t: t.config["trial"]["trial_id"],
             trial_dirname_creator=lambda t: t.config["trial"]["trial_id"],

@@ -223,6 +223,7 @@ def _run_tune(trials: list[dict[str, Any]], output: Path, cpus_per_trial: float,
         tune.with_resources(tune.with_parameters(_run_trial_in_tune, **shared), {"cpu": cpus_per_trial}),
         param_space={"trial": tune.grid_search(own)},
         tune_config=tune.TuneConfig(
+            reuse_actors=True,  # a worker keeps its imports (torch, SB3) from one trial to the next
             trial_name_creator=lambda t: t.config["trial"]["trial_id"],
             trial_dirname_creator=lambda t: t.config["trial"]["trial_id"],
         ),

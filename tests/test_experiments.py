@@ -2,6 +2,7 @@
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -178,6 +179,20 @@ def test_sweep_smoke_end_to_end_and_resume(tmp_path):
     assert "6 trials, 6 already finished" in result.stdout
     assert {p: p.stat().st_mtime_ns for p in (output / "trials").glob("*/model.zip")} == models
     assert sorted((output / "ray").iterdir()) == ray_runs
+
+    # a sweep interrupted before a trial finished: --resume trains that trial only
+    shutil.rmtree(output / "trials" / "no_comm-seed1")
+    result = run_sweep_command(*args, *extra, "--resume")
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "6 trials, 5 already finished" in result.stdout
+    assert (output / "trials" / "no_comm-seed1" / "trial.json").exists()
+    kept = {p: t for p, t in models.items() if p.parent.name != "no_comm-seed1"}
+    assert {p: p.stat().st_mtime_ns for p in kept} == kept
+    assert pd.read_csv(output / "scores.csv").groupby("variant")["train_seed"].nunique().to_dict() == {
+        "proposed": 2,
+        "no_comm": 2,
+        "independent": 2,
+    }
 
     # the same output without --resume, or with other arguments, is refused
     again = run_sweep_command(*args, *extra)

@@ -112,7 +112,7 @@ def _plot_learning_curves(progress: pd.DataFrame, grid_columns: list[str], outpu
                       for c in curves.to_numpy().T]
             point, low, high = np.array(points).T
             label = ", ".join(map(str, group))
-            axis.plot(steps, point, label=f"{label} ({len(curves)} seeds)")
+            axis.plot(steps, point, marker="o" if len(steps) < 30 else None, label=f"{label} ({len(curves)} seeds)")
             axis.fill_between(steps, low, high, alpha=0.25)
         axis.set_xlabel("agent-steps")
         axis.set_ylabel({"coverage": "coverage of finished episodes (%)", "episode_reward": "episode return"}[metric])
@@ -122,6 +122,18 @@ def _plot_learning_curves(progress: pd.DataFrame, grid_columns: list[str], outpu
     figure.savefig(output / "learning_curves.png", dpi=120)
     plt.close(figure)
     return "learning_curves.png"
+
+
+def _in_sweep_order(frame: pd.DataFrame, columns: list[str], spec: dict) -> pd.DataFrame:
+    """``frame`` sorted by ``columns``, with variants, evaluation sets and conditions in the order the sweep names them."""
+    from sb3_latentswarm.evaluation import CONDITIONS
+
+    ranks = {"variant": spec["variants"], "eval_set": [s["name"] for s in spec["eval_sets"]], "condition": CONDITIONS}
+
+    def rank(column: pd.Series) -> pd.Series:
+        return column.map({value: i for i, value in enumerate(ranks[column.name])}) if column.name in ranks else column
+
+    return frame.sort_values(columns, key=rank, kind="stable", ignore_index=True)
 
 
 def write_report(output: str | Path, commit: str | None = None) -> pd.DataFrame:
@@ -140,10 +152,10 @@ def write_report(output: str | Path, commit: str | None = None) -> pd.DataFrame:
     grid_columns = list(spec["grid"])
     episodes = _read_trials(output, "episodes.csv")
     episodes.to_csv(output / "episodes.csv", index=False)
-    run_columns = [*grid_columns, "variant", "train_seed", "trial_id", *CELL_COLUMNS]
-    scores = run_scores(episodes, run_columns)
+    run_columns = [*grid_columns, *CELL_COLUMNS, "variant", "train_seed", "trial_id"]
+    scores = _in_sweep_order(run_scores(episodes, run_columns), run_columns, spec)
     scores.to_csv(output / "scores.csv", index=False)
-    group_columns = [*grid_columns, "variant", *CELL_COLUMNS]
+    group_columns = [*grid_columns, *CELL_COLUMNS, "variant"]  # the variants of one cell side by side
     aggregate = aggregate_scores(scores, group_columns, SCORE_METRICS)
     aggregate.to_csv(output / "aggregate.csv", index=False)
     markdown = aggregate_markdown(aggregate, group_columns)

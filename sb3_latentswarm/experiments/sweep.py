@@ -176,13 +176,13 @@ def _check_output(output: Path, spec: dict[str, Any], resume: bool) -> None:
         )
 
 
-def _run_trial_in_tune(config: dict[str, Any], spec: dict[str, Any], commit: str) -> None:
+def _run_trial_in_tune(config: dict[str, Any], trials: dict[str, dict[str, Any]], threads: int) -> None:
     """The Ray Tune trainable: one trial, progress reported per rollout, results reported as the final checkpoint."""
     import torch
     from ray import tune
 
-    trial = {**config["trial"], "spec": spec, "commit": commit}
-    torch.set_num_threads(trial["threads"])
+    trial = trials[config["trial_id"]]
+    torch.set_num_threads(threads)
     work = Path(tempfile.mkdtemp(prefix=f"{trial['trial_id']}-"))
     try:
         record = train_and_evaluate(trial, work, report=tune.report)
@@ -213,19 +213,19 @@ def _run_tune(trials: list[dict[str, Any]], output: Path, cpus_per_trial: float,
     class CollectFinished(tune.Callback):
         def on_trial_complete(self, iteration, trials, trial, **info):
             if trial.checkpoint is not None:
-                _collect(trial.checkpoint, trials_dir / trial.config["trial"]["trial_id"])
+                _collect(trial.checkpoint, trials_dir / trial.config["trial_id"])
 
-    threads = max(1, int(cpus_per_trial))
-    # the trial's own keys go into Tune's config (its console shows them); the shared spec goes by reference
-    shared = {"spec": trials[0]["spec"], "commit": trials[0]["commit"]}
-    own = [{k: v for k, v in trial.items() if k not in shared} | {"threads": threads} for trial in trials]
+    # Tune's config holds only the trial id (its console shows it); the trials travel once, through the object store
+    trainable = tune.with_parameters(
+        _run_trial_in_tune, trials={trial["trial_id"]: trial for trial in trials}, threads=max(1, int(cpus_per_trial))
+    )
     tuner = tune.Tuner(
-        tune.with_resources(tune.with_parameters(_run_trial_in_tune, **shared), {"cpu": cpus_per_trial}),
-        param_space={"trial": tune.grid_search(own)},
+        tune.with_resources(trainable, {"cpu": cpus_per_trial}),
+        param_space={"trial_id": tune.grid_search([trial["trial_id"] for trial in trials])},
         tune_config=tune.TuneConfig(
             reuse_actors=True,  # a worker keeps its imports (torch, SB3) from one trial to the next
-            trial_name_creator=lambda t: t.config["trial"]["trial_id"],
-            trial_dirname_creator=lambda t: t.config["trial"]["trial_id"],
+            trial_name_creator=lambda t: t.config["trial_id"],
+            trial_dirname_creator=lambda t: t.config["trial_id"],
         ),
         run_config=tune.RunConfig(
             name=time.strftime("sweep-%Y%m%d-%H%M%S"),
@@ -237,11 +237,11 @@ def _run_tune(trials: list[dict[str, Any]], output: Path, cpus_per_trial: float,
     results = tuner.fit()
     failed = []
     for result in results:
-        trial_id_ = result.config["trial"]["trial_id"]
+        name = result.config["trial_id"]
         if result.error is not None or result.checkpoint is None:
-            failed.append(trial_id_)
-        elif not (trials_dir / trial_id_ / "trial.json").exists():
-            _collect(result.checkpoint, trials_dir / trial_id_)
+            failed.append(name)
+        elif not (trials_dir / name / "trial.json").exists():
+            _collect(result.checkpoint, trials_dir / name)
     return failed
 
 

@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from sb3_latentswarm.experiments.aggregate import aggregate_scores, mean, stratified_bootstrap_ci
-from sb3_latentswarm.experiments.trial import SCORE_METRICS, run_scores
+from sb3_latentswarm.experiments.trial import SCORE_METRICS, finished_trial_dirs, run_scores
 
 METRIC_LABELS = {
     "coverage": "Coverage (%)",
@@ -32,7 +32,8 @@ CELL_COLUMNS = ("eval_set", "condition", "p_fail")
 
 
 def _read_trials(output: Path, name: str) -> pd.DataFrame:
-    frames = [pd.read_csv(path) for path in sorted((output / "trials").glob(f"*/{name}")) if path.stat().st_size > 1]
+    paths = [folder / name for folder in finished_trial_dirs(output)]
+    frames = [pd.read_csv(path) for path in paths if path.stat().st_size > 1]
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
@@ -146,7 +147,7 @@ def write_report(output: str | Path, commit: str | None = None) -> pd.DataFrame:
 
     output = Path(output)
     spec = json.loads((output / "sweep.json").read_text())
-    records = [json.loads(p.read_text()) for p in sorted((output / "trials").glob("*/trial.json"))]
+    records = [json.loads((folder / "trial.json").read_text()) for folder in finished_trial_dirs(output)]
     if not records:
         raise ValueError(f"{output}: no finished trial to report")
     grid_columns = list(spec["grid"])

@@ -33,6 +33,7 @@ from sb3_latentswarm.experiments.trial import (
     VARIANTS,
     EvalSet,
     default_eval_sets,
+    finished_trial_dirs,
     train_and_evaluate,
     training_env_seed,
     trial_preset,
@@ -156,7 +157,7 @@ def check_address(address: str) -> None:
 
 def finished_trials(output: Path) -> set[str]:
     """The ids of the trials whose results are complete in ``output / "trials"``."""
-    return {path.parent.name for path in (output / "trials").glob("*/trial.json")}
+    return {path.name for path in finished_trial_dirs(output)}
 
 
 def _check_output(output: Path, spec: dict[str, Any], resume: bool) -> None:
@@ -204,7 +205,7 @@ def _collect(checkpoint: Any, destination: Path) -> None:
 def _run_tune(trials: list[dict[str, Any]], output: Path, cpus_per_trial: float, verbose: int) -> list[str]:
     """Run ``trials`` on the connected Ray cluster; collect each into ``output/trials`` as it completes.
 
-    :return: the ids of the trials that failed
+    :return: the ids of the trials that did not finish (failed, or not run after an interruption)
     """
     from ray import tune
 
@@ -234,15 +235,12 @@ def _run_tune(trials: list[dict[str, Any]], output: Path, cpus_per_trial: float,
             verbose=verbose,
         ),
     )
-    results = tuner.fit()
-    failed = []
-    for result in results:
-        name = result.config["trial_id"]
-        if result.error is not None or result.checkpoint is None:
-            failed.append(name)
-        elif not (trials_dir / name / "trial.json").exists():
+    for result in tuner.fit():  # after an interruption, trials that never started have no config
+        name = (result.config or {}).get("trial_id")
+        if name and result.error is None and result.checkpoint is not None and not (trials_dir / name).exists():
             _collect(result.checkpoint, trials_dir / name)
-    return failed
+    finished = finished_trials(output)
+    return [trial["trial_id"] for trial in trials if trial["trial_id"] not in finished]
 
 
 def run_sweep(

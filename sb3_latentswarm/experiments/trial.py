@@ -158,6 +158,13 @@ def run_scores(episodes: pd.DataFrame, by: Sequence[str]) -> pd.DataFrame:
     return scores.reset_index()
 
 
+def finished_trial_dirs(output: Path) -> list[Path]:
+    """The complete trial folders of the sweep in ``output``: ``trials/<trial_id>/`` with its ``trial.json`` (not the
+    hidden ``.<trial_id>.partial`` folders of an interrupted copy)."""
+    paths = (output / "trials").glob("*/trial.json")
+    return sorted(path.parent for path in paths if not path.parent.name.startswith("."))
+
+
 def train_and_evaluate(
     trial: dict[str, Any],
     output: Path,
@@ -244,6 +251,7 @@ __all__ = [
     "conditions_for",
     "default_eval_sets",
     "evaluate_sets",
+    "finished_trial_dirs",
     "run_scores",
     "train_and_evaluate",
     "trial_preset",

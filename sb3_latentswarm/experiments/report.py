@@ -140,7 +140,7 @@ def _in_sweep_order(frame: pd.DataFrame, columns: list[str], spec: dict) -> pd.D
 def write_report(output: str | Path, commit: str | None = None) -> pd.DataFrame:
     """Write the tables, plots and ``run.md`` of the sweep in ``output`` from its finished trials.
 
-    :param commit: the code the sweep ran (default: the one recorded by the trials)
+    :param commit: the code that writes the report (default: the first trial's); each trial records its own
     :return: the aggregate table (long format, see :func:`~.aggregate.aggregate_scores`)
     """
     from sb3_latentswarm.common.run_record import write_run_record
@@ -186,6 +186,7 @@ def write_report(output: str | Path, commit: str | None = None) -> pd.DataFrame:
         f"{'mean' if spec['deterministic'] else 'sampled'} actions; cells: {eval_sets}",
         "intervals: across training seeds, a run's score in a cell is its mean over the cell's episodes; IQM and mean "
         "with 95 % stratified percentile-bootstrap CIs (10,000 replicates, our NumPy port of rliable's method)",
+        f"trial commits: {', '.join(sorted({r['commit'] for r in records}))}",
         f"trial machines: {'; '.join(machines)}",
         f"train wall time per trial: {np.median([r['train_seconds'] for r in records]):.0f} s (median)",
     ]

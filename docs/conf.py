@@ -160,6 +160,7 @@ def presets_table() -> str:
         "$T$ (`max_steps`); $b_0 / \\kappa$": horizon,
         "`num_obstacles`": lambda p: f"{p.config.num_obstacles}",
         "`v_max`, `vz_max`, `d_safe`": motion,
+        "`start_region`; `outage_model`": lambda p: f"{p.config.start_region}; {p.config.outage_model}",
         "swarms (`n_envs`)": lambda p: f"{p.n_envs}",
         "`n_steps`, `chunk_length`, `batch_size`, `n_epochs`": lambda p: algo(
             p, "n_steps", "chunk_length", "batch_size", "n_epochs"

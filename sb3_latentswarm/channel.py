@@ -18,7 +18,13 @@ Units and conventions
 * Optional (off by default, ``rician_k_altitude_slope = 0``): the K-factor grows with the pair's mean altitude,
   ``K_ij = max(0, K + slope * (0.5 (z_i + z_j) - min_altitude))``.
 * ``I_i ~ U(0, I_max)`` is drawn once per receiver ``i`` and step (shared by all links into ``i``).
-* ``xi_{j->i} ~ Bernoulli(1 - p_f)`` is drawn per directed link and step.
+* ``xi_{j->i} ~ Bernoulli(1 - p_f)`` is drawn per directed link and step (``outage_model="bernoulli"``, the paper's).
+* Extension, ``outage_model="gilbert_elliott"``: ``xi_{j->i}`` is a two-state Markov chain per directed link (bursty
+  outages). An up link fails with probability ``f`` per step and a failed link recovers with probability ``r = 1 / L``
+  (``L = mean_outage_steps``, the mean failure run); ``f = p_f r / (1 - p_f)`` makes ``p_f`` the stationary failure
+  probability, so :func:`link_probability` holds at every step once the chain starts stationary (it does: the first
+  draw of an episode is Bernoulli). ``L = 1 / (1 - p_f)`` gives back independent draws; ``p_f = 1`` keeps every link
+  down. The caller keeps the chain state (:data:`XI_UNSET` at reset) and passes it to :meth:`A2AChannel.sample`.
 * A link is active iff ``xi_{j->i} = 1`` and ``Gamma_{j->i} >= beta_th``. For ``beta_th > 0`` this is exactly
   ``Gamma >= beta_th`` (a failed link has ``Gamma = 0``); for ``beta_th = 0`` it keeps failed links down.
 
@@ -27,7 +33,8 @@ Link-matrix convention: ``L[..., i, j] = True`` iff the message of sender ``j`` 
 ``N_t^i``. The diagonal is always ``False`` (a UAV does not "receive" its own message).
 
 ``SwarmConfig.link_mode`` selects the ablations: ``"channel"`` draws links from Eq. (1), ``"full"`` sets every
-off-diagonal link up (Full comm), ``"none"`` sets every link down (No comm); the last two make no random draws.
+off-diagonal link up (Full comm), ``"none"`` sets every link down (No comm); ``"full_in_range"`` (extension) sets up
+exactly the links no longer than :func:`usable_link_range`. The last three make no random draws.
 """
 
 from __future__ import annotations
@@ -40,10 +47,93 @@ import numpy as np
 
 from sb3_latentswarm.config import SwarmConfig
 
-__all__ = ["A2AChannel", "ChannelDraws", "link_probability", "sample_rician_power"]
+__all__ = [
+    "XI_UNSET",
+    "A2AChannel",
+    "ChannelDraws",
+    "link_probability",
+    "outage_thresholds",
+    "outage_transition_probabilities",
+    "sample_rician_power",
+    "step_link_outages",
+    "usable_link_range",
+]
 
 #: Gauss-Legendre nodes used by :func:`link_probability` to average over ``I ~ U(0, I_max)``.
 N_QUADRATURE = 64
+#: Value of a link's outage state before its first draw of an episode (the states are int8: 1 up, 0 failed).
+XI_UNSET = -1
+#: Distances in metres beyond which :func:`usable_link_range` calls a link always usable (e.g. ``alpha = 0``).
+MAX_LINK_RANGE = 1e9
+
+
+def outage_transition_probabilities(p_fail: float, mean_outage_steps: float) -> tuple[float, float]:
+    """Gilbert-Elliott transition probabilities ``(f, r)`` per step: up -> failed ``f``, failed -> up ``r``.
+
+    ``r = 1 / L`` and ``f = p_f r / (1 - p_f)``, so the stationary failure probability ``f / (f + r)`` is ``p_f`` and a
+    failure run lasts ``L`` steps on average (geometric). ``p_f = 1`` gives ``(1, 0)``: every link stays down.
+
+    :param p_fail: stationary failure probability p_f in [0, 1].
+    :param mean_outage_steps: L >= 1 / (1 - p_f), the mean failure run in steps.
+    """
+    if p_fail >= 1.0:
+        return 1.0, 0.0
+    recover = 1.0 / mean_outage_steps
+    return min(p_fail * recover / (1.0 - p_fail), 1.0), recover
+
+
+def outage_thresholds(config: SwarmConfig) -> np.ndarray:
+    """Thresholds of the xi draw, indexed by the previous outage state + 1: xi_t = (u >= thresholds[state + 1]).
+
+    Entries ``[p_f, 1 - r, f]`` for the states ``(XI_UNSET, failed, up)``: an unset link is drawn from the stationary
+    Bernoulli(1 - p_f), a failed link recovers with probability ``r``, an up link fails with probability ``f`` (see
+    :func:`outage_transition_probabilities`). ``outage_model="bernoulli"`` gives ``[p_f, p_f, p_f]``, Eq. (1)'s xi.
+
+    :return: float64 array of shape (3,).
+    """
+    if config.outage_model == "bernoulli":
+        return np.full(3, float(config.p_fail))
+    fail, recover = outage_transition_probabilities(config.p_fail, config.mean_outage_steps)
+    return np.array([config.p_fail, 1.0 - recover, fail])
+
+
+def step_link_outages(xi_state: np.ndarray, uniforms: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
+    """Advance the outage chain of every directed link by one step (vectorized over any leading shape).
+
+    :param xi_state: int8 outage state of the previous step, shape (..., N, N): 1 up, 0 failed, :data:`XI_UNSET`
+        before the first draw of an episode.
+    :param uniforms: U(0, 1) draws of the same shape, one per link.
+    :param thresholds: :func:`outage_thresholds` of the config.
+    :return: xi of this step, bool, same shape (True = no abrupt failure).
+    """
+    # Gilbert-Elliott: P(xi_t = 1 | xi_{t-1}) = 1 - f (was up), r (was failed), 1 - p_f (unset: stationary)
+    return uniforms >= thresholds[xi_state + 1]
+
+
+def usable_link_range(config: SwarmConfig) -> float:
+    """The channel's usable range in metres: the 3D distance at which a link without abrupt failures (p_f = 0) is up
+    with probability ``config.link_range_probability`` under Eq. (1) (:func:`link_probability`, solved by bisection).
+
+    With ``rician_k_altitude_slope != 0`` the K-factor is taken at ``initial_altitude``. Used by
+    ``link_mode="full_in_range"``; 0 when even ``min_link_distance`` falls short of the probability.
+    """
+    from scipy import optimize  # lazy: only the "full_in_range" mode needs it
+
+    channel_only = config.replace(p_fail=0.0, link_mode="channel")
+    target = config.link_range_probability
+
+    def excess(distance: float) -> float:
+        return float(link_probability(distance, channel_only, altitude=config.initial_altitude)) - target
+
+    low = config.min_link_distance
+    if excess(low) < 0.0:
+        return 0.0
+    high = 2.0 * low
+    while excess(high) >= 0.0:  # the probability falls to 0 as the distance grows, unless alpha = 0
+        if high > MAX_LINK_RANGE:
+            return math.inf
+        high *= 2.0
+    return float(optimize.brentq(excess, low, high, xtol=1e-6))
 
 
 def _check_positions(positions: Any) -> np.ndarray:
@@ -130,6 +220,10 @@ class A2AChannel:
         self._scale = 2.0 * (self.k_factor + 1.0)  # 2 (K+1)
         self._offdiag: dict[int, np.ndarray] = {}
         self._offdiag_mask(config.n_agents)
+        self.stateful_outages = config.outage_model == "gilbert_elliott"
+        self._xi_thresholds = outage_thresholds(config)
+        self.link_range = usable_link_range(config) if self.link_mode == "full_in_range" else None
+        """Usable range in metres of ``link_mode="full_in_range"`` (``None`` in the other modes)."""
 
     def _offdiag_mask(self, n: int) -> np.ndarray:
         """Cached boolean (n, n) mask, ``True`` off the diagonal."""
@@ -141,15 +235,18 @@ class A2AChannel:
         return mask
 
     # ------------------------------------------------------------------ hot path
-    def sample(self, positions: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    def sample(self, positions: np.ndarray, rng: np.random.Generator, xi_state: np.ndarray | None = None) -> np.ndarray:
         """Draw the directed link matrix for one step.
 
         Draw order (shared with :meth:`draw`): ``rng.standard_normal(batch + (N, N, 2))`` for the fading, then
         ``rng.random(batch + (N, N + 1))`` whose first ``N`` columns give ``xi`` and last column gives ``I``.
-        No draws are made when ``link_mode`` is ``"full"`` or ``"none"``.
+        No draws are made when ``link_mode`` is ``"full"``, ``"full_in_range"`` or ``"none"``.
 
         :param positions: UAV positions in metres, shape (N, 3) or a batch (B, N, 3).
         :param rng: numpy random generator.
+        :param xi_state: the outage state of every directed link, int8 of shape (N, N) or (B, N, N) (1 up, 0 failed,
+            :data:`XI_UNSET` at the start of an episode); advanced in place to this step's xi. Required by
+            ``outage_model="gilbert_elliott"``; ignored (left as it is) by ``"bernoulli"``, which has no memory.
         :return: boolean link matrix of shape (N, N) or (B, N, N); ``L[..., i, j]`` = receiver ``i`` got sender ``j``.
         """
         pos = _check_positions(positions)
@@ -158,6 +255,9 @@ class A2AChannel:
         if self.link_mode != "channel":
             if self.link_mode == "full":
                 return np.broadcast_to(mask, pos.shape[:-1] + (n,)).copy()
+            if self.link_mode == "full_in_range":
+                diff = pos[..., :, None, :] - pos[..., None, :, :]
+                return ((diff * diff).sum(axis=-1) <= self.link_range**2) & mask
             return np.zeros(pos.shape[:-1] + (n,), dtype=bool)
         diff = pos[..., :, None, :] - pos[..., None, :, :]
         d2 = np.maximum((diff * diff).sum(axis=-1), self._min_d2)  # squared 3D distance, clamped at d_min^2
@@ -174,15 +274,33 @@ class A2AChannel:
             k = _rician_k(self.config, 0.5 * (alt[..., :, None] + alt[..., None, :]))  # K_ij at mean pair altitude
             lhs = (z[..., 0] + np.sqrt(2.0 * k)) ** 2 + z[..., 1] ** 2
             rhs *= 2.0 * (k + 1.0)
-        # xi ~ Bernoulli(1 - p_f): the link survives iff u >= p_f
-        return (lhs >= rhs) & (u[..., :n] >= self.p_fail) & mask
+        return (lhs >= rhs) & self._xi(u[..., :n], xi_state) & mask
+
+    def _xi(self, uniforms: np.ndarray, xi_state: np.ndarray | None) -> np.ndarray:
+        """xi of this step from its uniforms (..., N, N); advances ``xi_state`` in place for the Markov chain."""
+        if not self.stateful_outages:
+            # xi ~ Bernoulli(1 - p_f): the link survives iff u >= p_f (nothing to remember)
+            return uniforms >= self.p_fail
+        if xi_state is None:
+            raise ValueError(
+                "outage_model='gilbert_elliott' keeps a Markov state per link: pass xi_state, an int8 array of "
+                f"shape {uniforms.shape} filled with XI_UNSET at the start of the episode"
+            )
+        if xi_state.shape != uniforms.shape or xi_state.dtype != np.int8:
+            raise ValueError(
+                f"xi_state must be an int8 array of shape {uniforms.shape}, got {xi_state.dtype} {xi_state.shape}"
+            )
+        xi = step_link_outages(xi_state, uniforms, self._xi_thresholds)
+        xi_state[...] = xi
+        return xi
 
     # ------------------------------------------------------------------ helpers (tests, diagnostics)
-    def draw(self, positions: np.ndarray, rng: np.random.Generator) -> ChannelDraws:
+    def draw(self, positions: np.ndarray, rng: np.random.Generator, xi_state: np.ndarray | None = None) -> ChannelDraws:
         """Draw ``|h|^2``, ``I`` and ``xi`` with the same rng consumption as :meth:`sample` in ``"channel"`` mode.
 
         :param positions: UAV positions in metres, shape (N, 3) or (B, N, 3) (the altitude sets K if the slope is on).
         :param rng: numpy random generator.
+        :param xi_state: the outage state, as in :meth:`sample` (advanced in place).
         :return: the draws, see :class:`ChannelDraws`.
         """
         pos = _check_positions(positions)
@@ -192,7 +310,7 @@ class A2AChannel:
         h_power = sample_rician_power(k, pos.shape[:-1] + (n,), rng)
         u = rng.random(pos.shape[:-1] + (n + 1,))
         interference = self.interference_max * u[..., n]  # I_i ~ U(0, I_max), per receiver
-        xi = u[..., :n] >= self.p_fail  # xi ~ Bernoulli(1 - p_f), per directed link
+        xi = self._xi(u[..., :n], xi_state)
         return ChannelDraws(h_power=h_power, interference=interference, xi=xi)
 
     def sinr_from_draws(self, positions: np.ndarray, draws: ChannelDraws) -> np.ndarray:
@@ -219,16 +337,17 @@ class A2AChannel:
         )
         return np.where(self._offdiag_mask(n), gamma, 0.0)
 
-    def sinr(self, positions: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    def sinr(self, positions: np.ndarray, rng: np.random.Generator, xi_state: np.ndarray | None = None) -> np.ndarray:
         """Draw the channel and return the SINR matrix of Eq. (1) (diagonal 0).
 
         With the same rng state, ``sample`` in ``"channel"`` mode returns ``(sinr >= beta_th) & xi`` off the diagonal.
 
         :param positions: UAV positions in metres, shape (N, 3) or (B, N, 3).
         :param rng: numpy random generator.
+        :param xi_state: the outage state, as in :meth:`sample` (advanced in place).
         :return: SINR matrix, shape (N, N) or (B, N, N), ``[..., i, j]`` = ``Gamma_{j->i}``.
         """
-        return self.sinr_from_draws(positions, self.draw(positions, rng))
+        return self.sinr_from_draws(positions, self.draw(positions, rng, xi_state))
 
 
 def link_probability(
@@ -240,7 +359,9 @@ def link_probability(
     ``P(|h|^2 >= x) = ncx2.sf(2 (K+1) x, df=2, nc=2K)`` (``exp(-x)`` for ``K = 0``) and ``I ~ U(0, I_max)``
     averaged by Gauss-Legendre quadrature with :data:`N_QUADRATURE` nodes (no averaging if ``I_max = 0``).
     Distances below ``min_link_distance`` are raised to it, as in :class:`A2AChannel`.
-    ``link_mode="full"`` gives 1 and ``"none"`` gives 0.
+    ``link_mode="full"`` gives 1, ``"none"`` gives 0 and ``"full_in_range"`` gives 1 up to :func:`usable_link_range`,
+    0 beyond. With ``outage_model="gilbert_elliott"`` it is the probability at every step of an episode (the outage
+    chain starts and stays in its stationary distribution, whose failure probability is p_f).
 
     :param distance: 3D distance(s) in metres, scalar or array, ``>= 0`` (``inf`` gives probability 0).
     :param config: the swarm configuration.
@@ -265,6 +386,8 @@ def link_probability(
         return np.ones(d.shape)
     if config.link_mode == "none":
         return np.zeros(d.shape)
+    if config.link_mode == "full_in_range":
+        return (d <= usable_link_range(config)).astype(np.float64)
 
     from scipy import stats  # lazy: scipy is not needed on the hot path
 

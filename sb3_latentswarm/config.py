@@ -14,8 +14,10 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-LINK_MODES = ("channel", "full", "none")
+LINK_MODES = ("channel", "full", "full_in_range", "none")
 ACTION_FRAMES = ("world", "body")
+START_REGIONS = ("uniform", "corner")
+OUTAGE_MODELS = ("bernoulli", "gilbert_elliott")
 
 
 def dbm_to_mw(power_dbm: float) -> float:
@@ -51,6 +53,14 @@ class SwarmConfig:
     """Upper altitude bound in metres (paper: 20 m)."""
     initial_altitude: float = 10.0
     """Altitude at reset in metres (paper: 10 m)."""
+    start_region: str = "uniform"
+    """*Extension, opt-in.* Where the UAVs start (see :func:`~sb3_latentswarm.envs.start_positions.sample_start_positions`).
+    ``"uniform"`` (default, as the paper's random placement): independently and uniformly over the arena.
+    ``"corner"``: uniformly in the ``start_region_size x start_region_size`` square at the arena's corner (0, 0), a
+    common launch area, so start positions cannot act as implicit agent ids or split the map."""
+    start_region_size: float = 5.0
+    """*Extension.* Side in metres of the launch square of ``start_region="corner"`` (at most the arena's shorter side);
+    unused by ``"uniform"``."""
     num_obstacles: int = 30
     """Occupied cells of the ground truth M, placed uniformly at random each episode (paper: 30)."""
 
@@ -89,9 +99,20 @@ class SwarmConfig:
     # --- A2A channel, Eq. (1) (Sec. II-A, Sec. IV) ---
     link_mode: str = "channel"
     """``"channel"``: links drawn from Eq. (1); ``"full"``: every directed link up (Full comm); ``"none"``: every link
-    down (No comm)."""
+    down (No comm); ``"full_in_range"`` (*extension*): a link is up iff its 3D length is at most the channel's usable
+    range (:func:`~sb3_latentswarm.channel.usable_link_range`), so only links that Eq. (1) can deliver are forced up."""
     p_fail: float = 0.3
-    """p_f, probability of an abrupt link failure, xi ~ Bernoulli(1 - p_f) per directed link and step (paper: 0.3)."""
+    """p_f, probability of an abrupt link failure, xi ~ Bernoulli(1 - p_f) per directed link and step (paper: 0.3).
+    With ``outage_model="gilbert_elliott"`` it is the stationary failure probability of the Markov chain."""
+    outage_model: str = "bernoulli"
+    """How xi evolves. ``"bernoulli"`` (default, Eq. (1)): independent draws every step, so a failure lasts
+    1 / (1 - p_f) steps on average. ``"gilbert_elliott"`` (*extension, opt-in*): each directed link's xi is a two-state
+    Markov chain with stationary failure probability ``p_fail`` and mean failure run ``mean_outage_steps`` (bursty
+    outages); its initial state is drawn from the stationary distribution at reset."""
+    mean_outage_steps: float = 10.0
+    """*Extension.* L, the mean length in steps of a failure run under ``outage_model="gilbert_elliott"``: a failed
+    link recovers with probability 1 / L per step. Must be >= 1 / (1 - p_fail) (the Bernoulli run length; equality
+    gives back Bernoulli draws); unused by ``"bernoulli"``."""
     rician_k: float = 5.0
     """K, the Rician factor of ``|h|^2`` with ``E|h|^2 = 1`` (paper: 5)."""
     rician_k_altitude_slope: float = 0.0
@@ -110,6 +131,10 @@ class SwarmConfig:
     """I_max: the interference I ~ U(0, I_max) in mW, drawn per receiver and step (paper: 0.5)."""
     min_link_distance: float = 0.1
     """*Open.* Distances below this (metres) are raised to it in d^-alpha, so co-located UAVs give a finite SINR."""
+    link_range_probability: float = 0.5
+    """*Extension.* Defines the channel's usable range for ``link_mode="full_in_range"``: the distance at which a link
+    without abrupt failures (p_f = 0) is up with this probability under Eq. (1) (0.5: the median range, 36.4 m with
+    the paper's constants)."""
 
     extra: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
     """Free-form metadata carried with the config (ignored by the env)."""
@@ -220,3 +245,24 @@ class SwarmConfig:
         if self.noise_power + self.interference_max <= 0.0:
             raise ValueError("SwarmConfig.noise_power + interference_max must be > 0 (the SINR denominator)")
         check_float("min_link_distance", 0.0, low_open=True)
+        check_float("link_range_probability", 0.0, 1.0, low_open=True, high_open=True)
+        if self.start_region not in START_REGIONS:
+            raise ValueError(f"SwarmConfig.start_region must be one of {START_REGIONS}, got {self.start_region!r}")
+        check_float("start_region_size", 0.0, low_open=True)
+        shorter_side = min(self.grid_width, self.grid_height) * self.cell_size
+        if self.start_region == "corner" and self.start_region_size > shorter_side:
+            raise ValueError(
+                f"SwarmConfig.start_region_size must be in (0, {shorter_side}] (the arena's shorter side in metres) for "
+                f"start_region='corner', got {self.start_region_size}"
+            )
+        if self.outage_model not in OUTAGE_MODELS:
+            raise ValueError(f"SwarmConfig.outage_model must be one of {OUTAGE_MODELS}, got {self.outage_model!r}")
+        check_float("mean_outage_steps", 1.0)
+        if self.outage_model == "gilbert_elliott" and self.p_fail < 1.0:
+            bernoulli_run = 1.0 / (1.0 - self.p_fail)
+            if self.mean_outage_steps < bernoulli_run * (1.0 - 1e-12):
+                raise ValueError(
+                    f"SwarmConfig.mean_outage_steps must be >= 1 / (1 - p_fail) = {bernoulli_run:.6g} steps (the "
+                    f"Bernoulli run length) for outage_model='gilbert_elliott' with p_fail={self.p_fail}, got "
+                    f"{self.mean_outage_steps}; lower p_fail or raise mean_outage_steps"
+                )

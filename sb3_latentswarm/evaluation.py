@@ -10,6 +10,17 @@ Conditions (Sec. IV, "To assess each proposed component's contribution, we compa
 ``no_memory``     channel links; the memory state rho_t is zeroed before it is used in any update
 ================  =========================================================================================
 
+One more condition, an extension (:data:`EXTRA_CONDITIONS`, not in Table I and not in the default set of
+:func:`evaluate_conditions`; pass it in ``conditions`` to report it beside ``full_comm``):
+
+======================  ===================================================================================
+``full_comm_in_range``  every link up whose 3D length is within the channel's usable range, every longer link
+                        down (``link_mode="full_in_range"``, range :func:`~sb3_latentswarm.channel.usable_link_range`,
+                        set by ``SwarmConfig.link_range_probability``): Full comm without delivering messages from
+                        peers so far away that the trained policy never received one (with distance-limited links
+                        "a message arrived" is also a proximity cue)
+======================  ===================================================================================
+
 Execution is decentralized: every UAV acts from its own ``local_obs``, ``proprio`` and the messages that reached it
 (``link_row``); the global keys of the observation are read only for the ``map_error`` diagnostic. Episodes run in
 ``n_envs`` :class:`~sb3_latentswarm.envs.SwarmReconEnv` copies stepped in lockstep, with one batched policy call per
@@ -41,6 +52,7 @@ __all__ = [
     "CONDITIONS",
     "CONDITION_LABELS",
     "EPISODE_COLUMNS",
+    "EXTRA_CONDITIONS",
     "PAPER_P_FAILS",
     "PAPER_TABLE1_CONDITIONS",
     "PAPER_TABLE1_P_FAIL",
@@ -55,9 +67,12 @@ __all__ = [
 ]
 
 CONDITIONS = ("proposed", "full_comm", "no_comm", "no_predictor", "no_memory")
-"""The five test-time conditions of Sec. IV."""
+"""The five test-time conditions of Sec. IV (Table I, and the default of :func:`evaluate_conditions`)."""
+EXTRA_CONDITIONS = ("full_comm_in_range",)
+"""Conditions beyond the paper (see the module docstring); accepted wherever a condition is."""
 CONDITION_LABELS = {
     "full_comm": "Full comm (UB)",
+    "full_comm_in_range": "Full comm in range",
     "proposed": "Proposed (full)",
     "no_memory": "No memory",
     "no_comm": "No comm (LB)",
@@ -70,6 +85,7 @@ PAPER_P_FAILS = (0.0, 0.05, 0.15, 0.3, 0.5)
 _LINK_MODES = {
     "proposed": "channel",
     "full_comm": "full",
+    "full_comm_in_range": "full_in_range",
     "no_comm": "none",
     "no_predictor": "channel",
     "no_memory": "channel",
@@ -78,6 +94,7 @@ _LINK_MODES = {
 _SWITCHES = {
     "proposed": (False, False),
     "full_comm": (False, False),
+    "full_comm_in_range": (False, False),
     "no_comm": (False, False),
     "no_predictor": (True, False),
     "no_memory": (False, True),
@@ -110,8 +127,8 @@ _EXTRA_MEANS = ("episode_return", "episode_length", "link_up_rate", "dropout_rat
 
 # ---------------------------------------------------------------------------------------------- conditions
 def _check_condition(condition: str) -> None:
-    if condition not in CONDITIONS:
-        raise ValueError(f"Unknown condition {condition!r}; allowed conditions: {list(CONDITIONS)}")
+    if condition not in CONDITIONS + EXTRA_CONDITIONS:
+        raise ValueError(f"Unknown condition {condition!r}; allowed conditions: {list(CONDITIONS + EXTRA_CONDITIONS)}")
 
 
 def _check_p_fail(p_fail: float) -> float:
@@ -390,7 +407,7 @@ def evaluate(
     :param model: a :class:`~sb3_latentswarm.LatentSwarmPPO`, a :class:`~sb3_latentswarm.LatentSwarmPolicy`, or any
         object with a recurrent ``predict(obs, state, episode_start, deterministic)`` over env-major slots (e.g. the
         planners of :mod:`sb3_latentswarm.baselines`, which get no policy diagnostics: NaN)
-    :param condition: one of :data:`CONDITIONS`
+    :param condition: one of :data:`CONDITIONS` or :data:`EXTRA_CONDITIONS`
     :param p_fail: p_f, the link failure probability of the channel (paper: 0.3); ``None`` keeps the config's
     :param n_episodes: number of episodes (paper: 10 Monte Carlo runs)
     :param seed: episode ``k`` uses env seed ``seed + k`` (and, if stochastic, action-noise seed ``seed + k``)
@@ -435,7 +452,7 @@ def evaluate(
         if any(_SWITCHES[condition]):
             raise ValueError(
                 f"Condition {condition!r} switches off a component of the latent-swarm policy; "
-                f"{type(model).__name__} has none (use 'proposed', 'full_comm' or 'no_comm')"
+                f"{type(model).__name__} has none (use 'proposed', 'full_comm', 'full_comm_in_range' or 'no_comm')"
             )
         actor: _LatentActor | _PredictActor = _PredictActor(model, deterministic)
         rows, curves = _run_episodes(actor, config, int(n_episodes), int(seed), n_envs, False, 0)

@@ -201,3 +201,10 @@ def test_continue_training_example_smoke(tmp_path):
     episodes = pd.read_csv(dropout / "sustained_dropout.csv")
     assert len(episodes) == 2 * 3 * 2 and (episodes["link_up_rate"] == 0).all() and (episodes["dropout_rate"] == 1).all()
     assert "zero vector" in (dropout / "run.md").read_text()
+
+
+def test_coordination_gap_benchmark_smoke():
+    result = run_script("benchmarks/coordination_gap.py", "--preset", "smoke", "--horizons", "5", "8", "--episodes", "2")
+    assert result.returncode == 0, result.stderr
+    assert "| planner | T = 5 | T = 8 |" in result.stdout and "| **gap (points)** |" in result.stdout
+    assert "random_strip (message-free)" in result.stdout and "frontier (coordinated)" in result.stdout

@@ -45,11 +45,14 @@ Model (units: metres, seconds of ``dt``; the arena is ``[0, X] x [0, Y]`` with `
   floor(y / cell_size))``; each reading is flipped with probability ``sensor_flip_prob``. ``M_hat`` keeps the latest
   reading of every sensed cell (two UAVs reading one cell at one step: the higher agent index wins); the coverage set
   C is the set of cells observed at least once. Sensing happens at reset and after every move.
-* Links: drawn from :class:`~sb3_latentswarm.channel.A2AChannel` at the reset positions and after every move.
+* Links: drawn from :class:`~sb3_latentswarm.channel.A2AChannel` at the reset positions and after every move; with
+  ``outage_model="gilbert_elliott"`` the env keeps the per-link outage state, restarted at every reset.
 * Step counting: ``reset`` is t = 0, the k-th ``step`` is t = k. An episode already fully covered at reset ends
   (``terminated``) at its first step.
 
-Scenario hooks (documented for tests and examples): ``reset(options={"positions": p})`` starts the UAVs at ``p``
+Start positions: drawn by :func:`~sb3_latentswarm.envs.start_positions.sample_start_positions` from
+``SwarmConfig.start_region`` (uniform over the arena, the default, or a common corner launch area). Scenario hooks
+(documented for tests and examples): ``reset(options={"positions": p})`` starts the UAVs at ``p``
 (shape (N, 3), metres) instead of random positions; :meth:`SwarmReconEnv.set_positions` teleports them
 mid-episode (the next ``step`` moves from there and senses); :attr:`SwarmReconEnv.reward_terms` holds the
 unweighted ``(r_cov, r_red, r_coll)`` of the last step. Other ``options`` keys are ignored.
@@ -66,8 +69,9 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
-from sb3_latentswarm.channel import A2AChannel
+from sb3_latentswarm.channel import XI_UNSET, A2AChannel
 from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.envs.start_positions import sample_start_positions
 
 __all__ = ["SwarmReconEnv", "parallel_env", "OBS_KEYS", "ACTOR_OBS_KEYS", "STATE_OBS_KEYS", "PROPRIO_DIM"]
 
@@ -180,6 +184,7 @@ class SwarmReconEnv(ParallelEnv):
         self._kinematics = np.zeros((n, PROPRIO_DIM))
         self._bind_views()  # views into the arrays above (rebound after unpickling)
         self._links = np.zeros((n, n), dtype=bool)
+        self._xi_state = np.full((n, n), XI_UNSET, dtype=np.int8)  # outage state of every directed link
         self._footprint = np.zeros((n, fw * fw), dtype=np.intp)
         self._t = 0
         self._n_covered = 0
@@ -260,13 +265,11 @@ class SwarmReconEnv(ParallelEnv):
         self._covered.fill(True)
         self._covered[self._inside_flat] = False
 
-        x_max, y_max = self.arena_size
-        xy = rng.random((n, 2)) * (x_max, y_max)
+        start = sample_start_positions(cfg, rng)[0]  # SwarmConfig.start_region
         heading = rng.uniform(-math.pi, math.pi, n)
         positions = None if options is None else options.get("positions")
         if positions is None:
-            self._pos[:, :2] = xy
-            self._pos[:, 2] = cfg.initial_altitude
+            self._pos[:] = start
         else:
             self._pos[:] = self._check_positions(positions)
         self._vel.fill(0.0)
@@ -282,6 +285,7 @@ class SwarmReconEnv(ParallelEnv):
         self._in_link_sum.fill(0)
         self._n_link_draws = 0
         self._n_dropouts.fill(0)
+        self._xi_state.fill(XI_UNSET)  # the outage chains restart from their stationary distribution
         self.reward_terms = (0.0, 0.0, 0.0)
 
         readings, new_cells, _ = self._sense()
@@ -516,7 +520,7 @@ class SwarmReconEnv(ParallelEnv):
 
         :return: the link matrix as float32 (N, N), read-only, and the dropout flags (N,) bool.
         """
-        links = self._channel.sample(self._pos, self.np_random)
+        links = self._channel.sample(self._pos, self.np_random, self._xi_state)
         self._links = links
         n_in = links.sum(axis=1)  # live in-links per receiver, |N_t^i|
         dropout = n_in == 0  # N_t^i empty

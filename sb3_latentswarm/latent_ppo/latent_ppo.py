@@ -7,7 +7,10 @@ A subclass of sb3-contrib's ``RecurrentPPO``. What it changes and why (see ``doc
 * :class:`~sb3_latentswarm.common.SwarmRolloutBuffer` keeps each swarm together and time-aligned in a minibatch,
   replaying contiguous chunks from the stored latent state, because every agent's update reads its peers' states;
 * ``train`` minimizes L = -L_CLIP + c1 L_VF + c2 L_map + c3 L_pred - ent_coef * entropy in one gradient step per
-  minibatch on all parameters.
+  minibatch on all parameters;
+* opt-in training options of MAPPO (marlbenchmark/on-policy) that the paper does not specify: value normalization
+  (``normalize_value``), a Huber value loss (``value_loss="huber"``) and gradient clipping per parameter group
+  (``grad_clip="per_group"``: the critic's gradient norm no longer scales down the actor's and the latent losses').
 """
 
 from __future__ import annotations
@@ -42,6 +45,11 @@ PAPER_LEARNING_RATE = paper_learning_rate()
 """1e-4 for the first 1000 of 1600 updates, 1e-5 after (Sec. IV)."""
 
 N_AGENT_KEYS = ("link_row", "swarm_proprio")
+
+VALUE_LOSSES = ("mse", "huber")
+GRAD_CLIP_MODES = ("global", "per_group")
+LOSS_TERMS = ("policy", "value", "entropy", "map", "pred")
+"""The terms of the joint loss, as named in ``train/grad_norm_<term>``."""
 """Observation keys whose shape depends on the number of agents; the policy's parameters do not."""
 
 
@@ -107,6 +115,15 @@ class LatentSwarmPPO(RecurrentPPO):
     :param pred_coef: c3, weight of the message-prediction loss L_pred
     :param chunk_length: steps per training sequence (MAPPO's data chunk); must divide ``n_steps``
     :param max_grad_norm: gradient clipping norm
+    :param grad_clip: ``"global"``: one norm over all parameters (SB3's); ``"per_group"``: the critic V_omega and the
+        rest (actor, latent encoders, decoder, predictor) are clipped to ``max_grad_norm`` separately, as MAPPO's
+        separate actor and critic optimizers do
+    :param normalize_value: train the critic on normalized returns (MAPPO's ValueNorm; its statistics are part of the
+        policy's state and saved with it). Sets the policy's ``normalize_value``
+    :param value_loss: ``"mse"`` (the paper's L_VF) or ``"huber"`` (MAPPO's, with ``huber_delta``)
+    :param huber_delta: the Huber loss's threshold, in the critic's units (normalized when ``normalize_value``)
+    :param log_grad_norms: log the gradient norm of each weighted loss term (``train/grad_norm_<term>``) on the first
+        minibatch of every update (costs one extra backward pass per term and update)
     :param target_kl: optional KL early stopping
     :param stats_window_size: episodes averaged in the rollout logs
     :param tensorboard_log: TensorBoard log folder
@@ -139,6 +156,11 @@ class LatentSwarmPPO(RecurrentPPO):
         pred_coef: float = 5.0,
         chunk_length: int = 25,
         max_grad_norm: float = 0.5,
+        grad_clip: str = "global",
+        normalize_value: bool = False,
+        value_loss: str = "mse",
+        huber_delta: float = 10.0,
+        log_grad_norms: bool = False,
         target_kl: float | None = None,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
@@ -155,6 +177,19 @@ class LatentSwarmPPO(RecurrentPPO):
             raise ValueError(f"chunk_length must be >= 1, got {chunk_length}")
         if n_steps % chunk_length != 0:
             raise ValueError(f"chunk_length must divide n_steps: n_steps={n_steps}, chunk_length={chunk_length}")
+        if grad_clip not in GRAD_CLIP_MODES:
+            raise ValueError(f"grad_clip must be one of {GRAD_CLIP_MODES}, got {grad_clip!r}")
+        if value_loss not in VALUE_LOSSES:
+            raise ValueError(f"value_loss must be one of {VALUE_LOSSES}, got {value_loss!r}")
+        if not huber_delta > 0:
+            raise ValueError(f"huber_delta must be > 0, got {huber_delta}")
+        policy_kwargs = dict(policy_kwargs or {})
+        if "normalize_value" in policy_kwargs and bool(policy_kwargs["normalize_value"]) != bool(normalize_value):
+            raise ValueError(
+                f"normalize_value={normalize_value} contradicts policy_kwargs['normalize_value']="
+                f"{policy_kwargs['normalize_value']}; set it once, on LatentSwarmPPO"
+            )
+        policy_kwargs["normalize_value"] = bool(normalize_value)
         super().__init__(
             policy,
             env,
@@ -182,6 +217,11 @@ class LatentSwarmPPO(RecurrentPPO):
         self.map_coef = map_coef
         self.pred_coef = pred_coef
         self.chunk_length = chunk_length
+        self.grad_clip = grad_clip
+        self.normalize_value = bool(normalize_value)
+        self.value_loss = value_loss
+        self.huber_delta = huber_delta
+        self.log_grad_norms = log_grad_norms
         self.n_agents: int | None = None
         self.save_format = SAVE_FORMAT
         self.saved_by_version = __version__
@@ -326,7 +366,7 @@ class LatentSwarmPPO(RecurrentPPO):
         rollout_buffer.reset()
         callback.on_rollout_start()
         latent_state = self._last_latent_state
-        link_up_sum, in_link_count, dropout_sum = 0.0, 0.0, 0.0
+        link_up_sum, in_link_count, dropout_sum, in_box_sum = 0.0, 0.0, 0.0, 0.0
 
         while n_steps < n_rollout_steps:
             with th.no_grad():
@@ -335,6 +375,7 @@ class LatentSwarmPPO(RecurrentPPO):
                 actions, values, log_probs, new_latent_state = self.policy(obs_tensor, latent_state, episode_starts)
             actions = actions.cpu().numpy()
             clipped_actions = np.clip(actions, self.action_space.low, self.action_space.high)  # type: ignore[attr-defined]
+            in_box_sum += float((clipped_actions == actions).mean())
 
             # link statistics of the observation the agents just acted on (vectorized over slots)
             link_row = self._last_obs["link_row"]  # type: ignore[index]
@@ -371,6 +412,7 @@ class LatentSwarmPPO(RecurrentPPO):
 
         self.logger.record("rollout/link_up_rate", link_up_sum / in_link_count if in_link_count else float("nan"))
         self.logger.record("rollout/dropout_rate", dropout_sum / n_steps)
+        self.logger.record("rollout/actions_in_box", in_box_sum / n_steps)
         if self._swarm_summaries:
             self.logger.record("rollout/coverage", safe_mean([s["coverage"] for s in self._swarm_summaries]))
             self.logger.record("rollout/collisions", safe_mean([s["collisions"] for s in self._swarm_summaries]))
@@ -406,66 +448,101 @@ class LatentSwarmPPO(RecurrentPPO):
                 self._swarm_summaries.append(summary)
 
     # ------------------------------------------------------------------ training
+    def _minibatch_losses(self, rollout_data: Any, clip_range: float, clip_range_vf: float | None) -> dict[str, th.Tensor]:
+        """The unweighted terms of the joint loss on one minibatch, plus the probability ratio."""
+        evaluation = self.policy.evaluate_sequences(
+            rollout_data.observations,
+            rollout_data.actions,
+            rollout_data.latent_state,
+            rollout_data.episode_starts,
+        )
+        advantages = rollout_data.advantages
+        if self.normalize_advantage and advantages.numel() > 1:
+            advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+
+        # L_CLIP: clipped surrogate objective
+        ratio = th.exp(evaluation.log_prob - rollout_data.old_log_prob)
+        policy_loss_1 = advantages * ratio
+        policy_loss_2 = advantages * th.clamp(ratio, 1 - clip_range, 1 + clip_range)
+        policy_loss = -th.min(policy_loss_1, policy_loss_2).mean()
+
+        # L_VF on the critic's scale: the returns R_t (normalized by ValueNorm when it is on), optionally clipped
+        # around the old value, squared error (the paper's) or Huber (MAPPO's)
+        values, returns, old_values = evaluation.values, rollout_data.returns, rollout_data.old_values
+        normalizer = self.policy.value_normalizer
+        if normalizer is not None:
+            returns, old_values = normalizer.normalize(returns), normalizer.normalize(old_values)
+        if clip_range_vf is not None:
+            values = old_values + th.clamp(values - old_values, -clip_range_vf, clip_range_vf)
+        if self.value_loss == "huber":
+            value_loss = th.nn.functional.huber_loss(values, returns, delta=self.huber_delta)
+        else:
+            value_loss = ((returns - values) ** 2).mean()
+
+        map_loss, pred_loss = auxiliary_losses(evaluation, rollout_data.observations["global_map"])
+        return {
+            "policy": policy_loss,
+            "value": value_loss,
+            "entropy": -evaluation.entropy.mean(),
+            "map": map_loss,
+            "pred": pred_loss,
+            "log_ratio": evaluation.log_prob - rollout_data.old_log_prob,
+        }
+
+    def _loss_weights(self) -> dict[str, float]:
+        # Eq. (2): L = -L_CLIP + c1 L_VF + c2 L_map + c3 L_pred (and SB3's entropy bonus)
+        return {"policy": 1.0, "value": self.vf_coef, "entropy": self.ent_coef, "map": self.map_coef, "pred": self.pred_coef}
+
+    def _parameter_groups(self) -> list[list[th.nn.Parameter]]:
+        """The groups whose gradients are clipped separately (one group with ``grad_clip="global"``)."""
+        if self.grad_clip == "global":
+            return [list(self.policy.parameters())]
+        critic_ids = {id(p) for p in self.policy.critic_parameters}
+        rest = [p for p in self.policy.parameters() if id(p) not in critic_ids]
+        return [rest, list(self.policy.critic_parameters)]
+
+    def loss_gradient_norms(self, losses: dict[str, th.Tensor]) -> dict[str, float]:
+        """L2 norm, over all parameters, of the gradient of each weighted loss term (before any clipping)."""
+        weights = self._loss_weights()
+        parameters = [p for p in self.policy.parameters() if p.requires_grad]
+        norms = {}
+        for term in LOSS_TERMS:
+            grads = th.autograd.grad(weights[term] * losses[term], parameters, retain_graph=True, allow_unused=True)
+            norms[term] = float(th.sqrt(sum((g.detach() ** 2).sum() for g in grads if g is not None)))
+        return norms
+
     def train(self) -> None:
         """One update on the rollout: the joint loss of Sec. III-E, one gradient step per minibatch."""
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
         clip_range = self.clip_range(self._current_progress_remaining)  # type: ignore[operator]
         clip_range_vf = None if self.clip_range_vf is None else self.clip_range_vf(self._current_progress_remaining)  # type: ignore[operator]
+        if self.policy.value_normalizer is not None:
+            self.policy.value_normalizer.update(th.as_tensor(self.rollout_buffer.returns, device=self.device))
 
-        pg_losses, value_losses, entropy_losses, map_losses, pred_losses = [], [], [], [], []
-        clip_fractions, approx_kl_divs = [], []
+        weights = self._loss_weights()
+        parameter_groups = self._parameter_groups()
+        history: dict[str, list[float]] = {term: [] for term in LOSS_TERMS}
+        clip_fractions, approx_kl_divs, group_norms = [], [], []
+        grad_norms: dict[str, float] = {}
         continue_training = True
         loss = th.zeros(())
 
         for epoch in range(self.n_epochs):
             approx_kl_divs = []
             for rollout_data in self.rollout_buffer.get(self.batch_size):
-                evaluation = self.policy.evaluate_sequences(
-                    rollout_data.observations,
-                    rollout_data.actions,
-                    rollout_data.latent_state,
-                    rollout_data.episode_starts,
-                )
-                advantages = rollout_data.advantages
-                if self.normalize_advantage and advantages.numel() > 1:
-                    advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
-
-                # L_CLIP: clipped surrogate objective
-                ratio = th.exp(evaluation.log_prob - rollout_data.old_log_prob)
-                policy_loss_1 = advantages * ratio
-                policy_loss_2 = advantages * th.clamp(ratio, 1 - clip_range, 1 + clip_range)
-                policy_loss = -th.min(policy_loss_1, policy_loss_2).mean()
-
-                # L_VF = mean (R_t - V(s_t))^2, optionally clipped around the old value
-                values = evaluation.values
-                if clip_range_vf is not None:
-                    delta = th.clamp(values - rollout_data.old_values, -clip_range_vf, clip_range_vf)
-                    values = rollout_data.old_values + delta
-                value_loss = ((rollout_data.returns - values) ** 2).mean()
-
-                entropy_loss = -evaluation.entropy.mean()
-
-                map_loss, pred_loss = auxiliary_losses(evaluation, rollout_data.observations["global_map"])
-
-                # Eq. (2): L = -L_CLIP + c1 L_VF + c2 L_map + c3 L_pred (and SB3's entropy bonus)
-                loss = (
-                    policy_loss
-                    + self.vf_coef * value_loss
-                    + self.map_coef * map_loss
-                    + self.pred_coef * pred_loss
-                    + self.ent_coef * entropy_loss
-                )
+                losses = self._minibatch_losses(rollout_data, clip_range, clip_range_vf)
+                loss = sum(weights[term] * losses[term] for term in LOSS_TERMS)
+                if self.log_grad_norms and not grad_norms:
+                    grad_norms = self.loss_gradient_norms(losses)
 
                 with th.no_grad():
-                    log_ratio = evaluation.log_prob - rollout_data.old_log_prob
+                    log_ratio = losses["log_ratio"]
                     approx_kl_div = th.mean((th.exp(log_ratio) - 1) - log_ratio).cpu().numpy()
+                    ratio = th.exp(log_ratio)
                 approx_kl_divs.append(approx_kl_div)
-                pg_losses.append(policy_loss.item())
-                value_losses.append(value_loss.item())
-                entropy_losses.append(entropy_loss.item())
-                map_losses.append(map_loss.item())
-                pred_losses.append(pred_loss.item())
+                for term in LOSS_TERMS:
+                    history[term].append(losses[term].item())
                 clip_fractions.append(th.mean((th.abs(ratio - 1) > clip_range).float()).item())
 
                 if self.target_kl is not None and approx_kl_div > 1.5 * self.target_kl:
@@ -476,7 +553,7 @@ class LatentSwarmPPO(RecurrentPPO):
 
                 self.policy.optimizer.zero_grad()
                 loss.backward()
-                th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
+                group_norms.append([float(th.nn.utils.clip_grad_norm_(g, self.max_grad_norm)) for g in parameter_groups])
                 self.policy.optimizer.step()
 
             self._n_updates += 1
@@ -484,17 +561,31 @@ class LatentSwarmPPO(RecurrentPPO):
                 break
 
         explained_var = explained_variance(self.rollout_buffer.values.flatten(), self.rollout_buffer.returns.flatten())
-        self.logger.record("train/entropy_loss", np.mean(entropy_losses))
-        self.logger.record("train/policy_gradient_loss", np.mean(pg_losses))
-        self.logger.record("train/value_loss", np.mean(value_losses))
-        self.logger.record("train/map_loss", np.mean(map_losses))
-        self.logger.record("train/pred_loss", np.mean(pred_losses))
+        self.logger.record("train/entropy_loss", np.mean(history["entropy"]))
+        self.logger.record("train/policy_gradient_loss", np.mean(history["policy"]))
+        self.logger.record("train/value_loss", np.mean(history["value"]))
+        self.logger.record("train/map_loss", np.mean(history["map"]))
+        self.logger.record("train/pred_loss", np.mean(history["pred"]))
         self.logger.record("train/approx_kl", np.mean(approx_kl_divs))
         self.logger.record("train/clip_fraction", np.mean(clip_fractions))
         self.logger.record("train/loss", loss.item())
         self.logger.record("train/explained_variance", explained_var)
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/clip_range", clip_range)
+        if group_norms:
+            mean_norms = np.mean(group_norms, axis=0)
+            names = ["grad_norm"] if self.grad_clip == "global" else ["grad_norm_actor", "grad_norm_critic"]
+            for name, value in zip(names, mean_norms):
+                self.logger.record(f"train/{name}", float(value))
+        for term, value in grad_norms.items():
+            self.logger.record(f"train/grad_norm_{term}", value)
+        if not self.policy.state_dependent_std:
+            log_std = self.policy.log_std.detach().clamp(*self.policy.log_std_bounds)
+            self.logger.record("train/std", float(log_std.exp().mean()))
+        if self.policy.value_normalizer is not None:
+            mean, var = self.policy.value_normalizer.mean_var()
+            self.logger.record("train/value_norm_mean", float(mean))
+            self.logger.record("train/value_norm_std", float(var.sqrt()))
         if clip_range_vf is not None:
             self.logger.record("train/clip_range_vf", clip_range_vf)
 

@@ -31,6 +31,7 @@ from torch import nn
 
 from sb3_latentswarm.common.observations import ACTOR_KEYS, as_vec_observation
 from sb3_latentswarm.common.type_aliases import LatentState
+from sb3_latentswarm.common.value_norm import ValueNorm
 
 CRITIC_KEYS = ("swarm_proprio", "global_map")
 REQUIRED_KEYS = ACTOR_KEYS + CRITIC_KEYS
@@ -55,6 +56,7 @@ class SequenceEvaluation(NamedTuple):
     """Outputs of :meth:`LatentSwarmPolicy.evaluate_sequences`, time-major ``(T, B, ...)``."""
 
     values: th.Tensor
+    """The critic's raw output: normalized values when the policy normalizes values, returns otherwise."""
     log_prob: th.Tensor
     entropy: th.Tensor
     map_reconstruction: th.Tensor
@@ -89,7 +91,13 @@ class LatentSwarmPolicy(BasePolicy):
     :param critic_hidden: hidden width of the centralized critic V_omega
     :param actor_hidden: hidden width of the actor head on tau_t
     :param log_std_init: initial log std of the Gaussian actor
-    :param log_std_bounds: the state-dependent log std is clamped to this range
+    :param log_std_bounds: the log std is clamped to this range (``(-5, 2)`` by default; ``(-5, 0)`` keeps the std at
+        most 1, half the width of the [-1, 1] action box, so most sampled actions land inside it)
+    :param state_dependent_std: ``True``: the log std is a linear head on tau_t like the mean (the paper's pi(a | tau));
+        ``False``: one learned log std per action dimension, as SB3's default Gaussian policy
+    :param normalize_value: the critic learns normalized returns (MAPPO's ValueNorm); :meth:`predict_values` returns
+        them denormalized, in return units
+    :param value_norm_beta: weight of the old statistics in each (per-update) ValueNorm update
     :param ortho_init: orthogonal initialization of the linear layers (as SB3's ActorCriticPolicy)
     :param optimizer_class: optimizer (default Adam)
     :param optimizer_kwargs: optimizer keyword arguments (default ``eps=1e-5`` as SB3's PPO)
@@ -112,6 +120,9 @@ class LatentSwarmPolicy(BasePolicy):
         actor_hidden: int = 64,
         log_std_init: float = 0.0,
         log_std_bounds: tuple[float, float] = (-5.0, 2.0),
+        state_dependent_std: bool = True,
+        normalize_value: bool = False,
+        value_norm_beta: float = 0.995,
         ortho_init: bool = True,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
@@ -151,7 +162,12 @@ class LatentSwarmPolicy(BasePolicy):
         self.critic_hidden = critic_hidden
         self.actor_hidden = actor_hidden
         self.log_std_init = log_std_init
-        self.log_std_bounds = tuple(log_std_bounds)
+        self.log_std_bounds = _check_log_std_bounds(log_std_bounds)
+        if not self.log_std_bounds[0] <= log_std_init <= self.log_std_bounds[1]:
+            raise ValueError(f"log_std_init must lie in log_std_bounds {self.log_std_bounds}, got {log_std_init}")
+        self.state_dependent_std = bool(state_dependent_std)
+        self.normalize_value = bool(normalize_value)
+        self.value_norm_beta = value_norm_beta
         self.ortho_init = ortho_init
         self.no_predictor = no_predictor
         self.no_memory = no_memory
@@ -183,11 +199,15 @@ class LatentSwarmPolicy(BasePolicy):
         # pi_xi(a | tau_t): mean and diagonal log std
         self.actor_trunk = nn.Sequential(nn.Linear(d_tau, actor_hidden), nn.Tanh())
         self.action_mean = nn.Linear(actor_hidden, self.action_dim)
-        self.action_log_std = nn.Linear(actor_hidden, self.action_dim)
+        if self.state_dependent_std:
+            self.action_log_std = nn.Linear(actor_hidden, self.action_dim)
+        else:
+            self.log_std = nn.Parameter(th.full((self.action_dim,), float(log_std_init)))
         # V_omega(s_t), s_t = ({e_t^j}_j, M_hat_t): map encoder + mean-pooled proprio encoder, N-independent
         self.critic_map = nn.Sequential(nn.Linear(self.n_cells, critic_hidden), nn.ReLU())
         self.critic_agents = nn.Sequential(nn.Linear(e_dim, critic_hidden // 4), nn.ReLU())
         self.critic_head = _mlp([critic_hidden + critic_hidden // 4, critic_hidden, 1], nn.ReLU)
+        self.value_normalizer = ValueNorm(beta=value_norm_beta) if self.normalize_value else None
         self.action_dist = DiagGaussianDistribution(self.action_dim)
 
         if ortho_init:
@@ -201,8 +221,9 @@ class LatentSwarmPolicy(BasePolicy):
                 nn.init.orthogonal_(module.weight, gain=np.sqrt(2))
                 nn.init.zeros_(module.bias)
         nn.init.orthogonal_(self.action_mean.weight, gain=0.01)
-        nn.init.orthogonal_(self.action_log_std.weight, gain=0.01)
-        nn.init.constant_(self.action_log_std.bias, self.log_std_init)
+        if self.state_dependent_std:
+            nn.init.orthogonal_(self.action_log_std.weight, gain=0.01)
+            nn.init.constant_(self.action_log_std.bias, self.log_std_init)
         nn.init.orthogonal_(self.critic_head[-1].weight, gain=1.0)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
@@ -218,6 +239,9 @@ class LatentSwarmPolicy(BasePolicy):
             actor_hidden=self.actor_hidden,
             log_std_init=self.log_std_init,
             log_std_bounds=self.log_std_bounds,
+            state_dependent_std=self.state_dependent_std,
+            normalize_value=self.normalize_value,
+            value_norm_beta=self.value_norm_beta,
             ortho_init=self.ortho_init,
             lr_schedule=self._dummy_schedule,
             no_predictor=self.no_predictor,
@@ -287,11 +311,25 @@ class LatentSwarmPolicy(BasePolicy):
     def action_distribution(self, task_state: th.Tensor) -> DiagGaussianDistribution:
         """pi_xi(a | tau_t): Gaussian with state-dependent mean and diagonal std (Sec. III-D)."""
         hidden = self.actor_trunk(task_state)
-        log_std = self.action_log_std(hidden).clamp(*self.log_std_bounds)
-        return self.action_dist.proba_distribution(self.action_mean(hidden), log_std)
+        mean_actions = self.action_mean(hidden)
+        if self.state_dependent_std:
+            log_std = self.action_log_std(hidden)
+        else:
+            log_std = self.log_std.expand_as(mean_actions)
+        return self.action_dist.proba_distribution(mean_actions, log_std.clamp(*self.log_std_bounds))
+
+    @property
+    def critic_parameters(self) -> list[nn.Parameter]:
+        """Parameters of V_omega only (they read the global state, nothing else reads them)."""
+        return [p for module in (self.critic_map, self.critic_agents, self.critic_head) for p in module.parameters()]
 
     def predict_values(self, obs: dict[str, th.Tensor]) -> th.Tensor:  # type: ignore[override]
-        """V_omega(s_t) for every slot, (B, 1); computed once per swarm and broadcast to its agents."""
+        """V_omega(s_t) in return units for every slot, (B, 1) (denormalized when the critic learns normalized values)."""
+        values = self.critic_output(obs)
+        return values if self.value_normalizer is None else self.value_normalizer.denormalize(values)
+
+    def critic_output(self, obs: dict[str, th.Tensor]) -> th.Tensor:
+        """The critic's raw output for every slot, (B, 1); computed once per swarm and broadcast to its agents."""
         swarm_proprio = obs["swarm_proprio"].float()  # (B, N, e_dim)
         n_agents = swarm_proprio.shape[-2]
         batch_shape = swarm_proprio.shape[:-2]
@@ -354,7 +392,7 @@ class LatentSwarmPolicy(BasePolicy):
         log_prob = distribution.log_prob(flat_actions).view(n_steps, -1)
         entropy = distribution.entropy().view(n_steps, -1)
         critic_obs = {key: obs[key].flatten(0, 1) for key in CRITIC_KEYS}
-        values = self.predict_values(critic_obs).view(n_steps, -1)
+        values = self.critic_output(critic_obs).view(n_steps, -1)
         map_reconstruction = self.decode_map(th.stack(map_states))
         return SequenceEvaluation(
             values=values,
@@ -409,6 +447,16 @@ class LatentSwarmPolicy(BasePolicy):
         if agent_names is not None:
             return dict(zip(agent_names, actions_np)), new_state
         return actions_np, new_state
+
+
+def _check_log_std_bounds(bounds: Any) -> tuple[float, float]:
+    try:
+        low, high = (float(b) for b in bounds)
+    except (TypeError, ValueError):
+        raise TypeError(f"log_std_bounds must be a pair of numbers (low, high), got {bounds!r}") from None
+    if not (np.isfinite(low) and np.isfinite(high) and low < high):
+        raise ValueError(f"log_std_bounds must be finite with low < high, got {bounds!r}")
+    return low, high
 
 
 def check_observation_space(observation_space: spaces.Space) -> None:

@@ -139,7 +139,8 @@ def run_sweep_command(*args: str) -> subprocess.CompletedProcess:
 def test_sweep_smoke_end_to_end_and_resume(tmp_path):
     output = tmp_path / "sweep"
     args = ("--preset", "smoke", "--seeds", "2", "--eval-episodes", "2", "--output", str(output), "--verbose", "0")
-    extra = ("--eval-set", "pf07=p_fail=0.7,conditions=proposed+no_memory")
+    burst = "burst10=outage_model=gilbert_elliott,mean_outage_steps=10,p_fail=0.5,conditions=proposed+no_memory"
+    extra = ("--eval-set", burst)  # an evaluation cell of issue #12: bursty outages
     result = run_sweep_command(*args, *extra)
     assert result.returncode == 0, result.stderr[-3000:]
 
@@ -154,10 +155,13 @@ def test_sweep_smoke_end_to_end_and_resume(tmp_path):
     coverage = aggregate.query("metric == 'coverage'")
     assert (coverage["n_runs"] == 2).all() and (coverage["iqm_low"] <= coverage["iqm_high"]).all()
     # the extra cell: the latent variants under both of its conditions, the independent learner only where it can act
-    cell = scores.query("eval_set == 'pf07'")
+    cell = scores.query("eval_set == 'burst10'")
     assert set(cell.query("variant == 'proposed'")["condition"]) == {"proposed", "no_memory"}
     assert set(cell.query("variant == 'independent'")["condition"]) == {"proposed"}
-    assert (cell["p_fail"] == 0.7).all()
+    assert (cell["p_fail"] == 0.5).all()
+    assert set(scores.query("eval_set == 'table1'")["condition"]) == {
+        "proposed", "full_comm", "full_comm_in_range", "no_comm", "no_predictor", "no_memory"
+    }
 
     episodes = pd.read_csv(output / "episodes.csv")
     assert episodes["seed"].min() >= 1_000_000  # held-out evaluation seeds

@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from sb3_latentswarm.experiments.aggregate import aggregate_scores, mean, stratified_bootstrap_ci
-from sb3_latentswarm.experiments.trial import SCORE_METRICS, finished_trial_dirs, run_scores
+from sb3_latentswarm.experiments.trial import SCORE_METRICS, all_conditions, finished_trial_dirs, run_scores
 
 METRIC_LABELS = {
     "coverage": "Coverage (%)",
@@ -127,9 +127,7 @@ def _plot_learning_curves(progress: pd.DataFrame, grid_columns: list[str], outpu
 
 def _in_sweep_order(frame: pd.DataFrame, columns: list[str], spec: dict) -> pd.DataFrame:
     """``frame`` sorted by ``columns``, with variants, evaluation sets and conditions in the order the sweep names them."""
-    from sb3_latentswarm.evaluation import CONDITIONS
-
-    ranks = {"variant": spec["variants"], "eval_set": [s["name"] for s in spec["eval_sets"]], "condition": CONDITIONS}
+    ranks = {"variant": spec["variants"], "eval_set": [s["name"] for s in spec["eval_sets"]], "condition": all_conditions()}
 
     def rank(column: pd.Series) -> pd.Series:
         return column.map({value: i for i, value in enumerate(ranks[column.name])}) if column.name in ranks else column

@@ -32,6 +32,7 @@ from sb3_latentswarm.experiments.trial import (
     EVAL_SEED_BASE,
     VARIANTS,
     EvalSet,
+    all_conditions,
     default_eval_sets,
     finished_trial_dirs,
     train_and_evaluate,
@@ -109,15 +110,12 @@ def make_spec(
     names = [s.name for s in eval_sets]
     if len(set(names)) != len(names):
         raise ValueError(f"evaluation set names must be unique, got {names}")
-
-    from sb3_latentswarm import evaluation
-
     for eval_set in eval_sets:
         _check_fields(list(eval_set.overrides), f"--eval-set {eval_set.name}")
         for condition in eval_set.conditions or ():
-            if condition not in evaluation.CONDITIONS:
+            if condition not in all_conditions():
                 raise ValueError(
-                    f"--eval-set {eval_set.name}: unknown condition {condition!r}; allowed: {list(evaluation.CONDITIONS)}"
+                    f"--eval-set {eval_set.name}: unknown condition {condition!r}; allowed: {list(all_conditions())}"
                 )
     # build every trial's config and every evaluation cell's config now, so a bad value fails before any training
     for values in itertools.product(*grid.values()):

@@ -44,8 +44,8 @@ class EvalSet:
     :param name: the ``eval_set`` column of the output tables
     :param overrides: :class:`~sb3_latentswarm.SwarmConfig` fields replaced in the trial's env config (``p_fail``
         included; a condition still sets its own ``link_mode``)
-    :param conditions: the conditions of :mod:`sb3_latentswarm.evaluation` to run; ``None``: all of
-        ``evaluation.CONDITIONS`` (read when the trial runs, so new conditions join automatically)
+    :param conditions: the conditions of :mod:`sb3_latentswarm.evaluation` to run; ``None``: every condition it
+        knows, :func:`all_conditions` (read when the trial runs, so new conditions join automatically)
     """
 
     name: str
@@ -61,8 +61,14 @@ class EvalSet:
         return cls(data["name"], dict(data.get("overrides") or {}), tuple(conditions) if conditions else None)
 
 
+def all_conditions() -> tuple[str, ...]:
+    """Every test-time condition: Table I's five, then the extensions of :mod:`sb3_latentswarm.evaluation`."""
+    return evaluation.CONDITIONS + evaluation.EXTRA_CONDITIONS
+
+
 def default_eval_sets(preset: Preset) -> list[EvalSet]:
-    """Table I: every condition at the preset's p_f (``table1``), and the proposed condition at each p_f of the sweep."""
+    """Table I: every condition (:func:`all_conditions`) at the preset's p_f (``table1``), and the proposed condition at
+    each p_f of the preset's sweep (``p_fail=0``, ``p_fail=0.05``, ...)."""
     return [EvalSet("table1")] + [EvalSet(f"p_fail={p:g}", {"p_fail": p}, ("proposed",)) for p in preset.p_fails]
 
 
@@ -129,7 +135,7 @@ def evaluate_sets(
     cell of ``eval_sets``, all on the env seeds ``eval_seed .. eval_seed + n_episodes - 1``."""
     frames = []
     for eval_set in eval_sets:
-        conditions = conditions_for(variant, eval_set.conditions or evaluation.CONDITIONS)
+        conditions = conditions_for(variant, eval_set.conditions or all_conditions())
         if not conditions:
             continue
         frame = evaluation.evaluate_conditions(
@@ -244,6 +250,7 @@ def train_and_evaluate(
 
 __all__ = [
     "EVAL_SEED_BASE",
+    "all_conditions",
     "SCORE_METRICS",
     "VARIANTS",
     "EvalSet",

@@ -231,6 +231,7 @@ def command_sweep(args: argparse.Namespace) -> int:
             deterministic=not args.stochastic,
             address=args.address,
             cpus_per_trial=args.cpus_per_trial,
+            gpus_per_trial=args.gpus_per_trial,
             output=args.output,
             resume=args.resume,
             verbose=args.verbose,
@@ -315,6 +316,7 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--stochastic", action="store_true", help="evaluate with sampled actions (default: the mean action)")
     sweep.add_argument("--address", default=None, help="Ray cluster to attach to (default: start Ray on this machine)")
     sweep.add_argument("--cpus-per-trial", type=float, default=1.0, help="CPUs per trial (and its torch threads; default 1)")
+    sweep.add_argument("--gpus-per-trial", type=float, default=0.0, help="GPUs per trial (default 0: train on the CPU)")
     sweep.add_argument("--output", default=None, help="result folder (default runs/sweeps/PRESET)")
     sweep.add_argument("--resume", action="store_true", help="continue the sweep in --output; finished trials are kept")
     sweep.add_argument("--verbose", type=int, default=1, help="Ray Tune console: 0 silent, 1 status table, 2 trial results")

@@ -107,6 +107,8 @@ def test_plan_crosses_variants_seeds_and_grid_points():
         (["--eval-set", "bad=warp_speed=3"], "unknown SwarmConfig field"),
         (["--eval-set", "bad=p_fail=0.7,conditions=proposed+telepathy"], "unknown condition 'telepathy'"),
         (["--address", "127.0.0.1:1"], "no Ray cluster answers there"),
+        (["--cpus-per-trial", "0"], "--cpus-per-trial must be > 0"),
+        (["--gpus-per-trial", "-1"], "--gpus-per-trial must be >= 0"),
         (["--address", "nonsense"], "HOST:PORT"),
     ],
 )

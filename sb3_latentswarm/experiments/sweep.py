@@ -200,7 +200,7 @@ def _collect(checkpoint: Any, destination: Path) -> None:
     partial.rename(destination)
 
 
-def _run_tune(trials: list[dict[str, Any]], output: Path, cpus_per_trial: float, verbose: int) -> list[str]:
+def _run_tune(trials: list[dict[str, Any]], output: Path, resources: dict[str, float], verbose: int) -> list[str]:
     """Run ``trials`` on the connected Ray cluster; collect each into ``output/trials`` as it completes.
 
     :return: the ids of the trials that did not finish (failed, or not run after an interruption)
@@ -216,10 +216,10 @@ def _run_tune(trials: list[dict[str, Any]], output: Path, cpus_per_trial: float,
 
     # Tune's config holds only the trial id (its console shows it); the trials travel once, through the object store
     trainable = tune.with_parameters(
-        _run_trial_in_tune, trials={trial["trial_id"]: trial for trial in trials}, threads=max(1, int(cpus_per_trial))
+        _run_trial_in_tune, trials={trial["trial_id"]: trial for trial in trials}, threads=max(1, int(resources["cpu"]))
     )
     tuner = tune.Tuner(
-        tune.with_resources(trainable, {"cpu": cpus_per_trial}),
+        tune.with_resources(trainable, resources),
         param_space={"trial_id": tune.grid_search([trial["trial_id"] for trial in trials])},
         tune_config=tune.TuneConfig(
             reuse_actors=True,  # a worker keeps its imports (torch, SB3) from one trial to the next
@@ -254,6 +254,7 @@ def run_sweep(
     deterministic: bool = True,
     address: str | None = None,
     cpus_per_trial: float = 1.0,
+    gpus_per_trial: float = 0.0,
     output: str | Path | None = None,
     resume: bool = False,
     verbose: int = 1,
@@ -275,6 +276,7 @@ def run_sweep(
     :param address: a running Ray cluster (``HOST:PORT``, ``ray://HOST:PORT``, ``auto``); ``None`` starts Ray here
         with every CPU of this machine
     :param cpus_per_trial: CPUs Ray reserves per trial (its torch threads: the integer part, at least 1)
+    :param gpus_per_trial: GPUs Ray reserves per trial (a fraction shares one); with 0, trials train on the CPU
     :param output: result folder (default ``runs/sweeps/<preset>``)
     :param resume: continue the sweep in ``output``: finished trials are kept, not retrained
     :param verbose: Ray Tune's console verbosity (0 silent, 1 status table, 2 also trial results)
@@ -291,6 +293,8 @@ def run_sweep(
     )
     if not cpus_per_trial > 0:
         raise ValueError(f"--cpus-per-trial must be > 0, got {cpus_per_trial!r}")
+    if not gpus_per_trial >= 0:
+        raise ValueError(f"--gpus-per-trial must be >= 0, got {gpus_per_trial!r}")
     output = Path(output or Path("runs") / "sweeps" / preset)
     _check_output(output, spec, resume)
     if address is not None:
@@ -311,7 +315,8 @@ def run_sweep(
         (output / "sweep.json").write_text(json.dumps(spec, indent=2))
         try:
             print(f"Ray: {ray.cluster_resources().get('CPU', 0):g} CPUs at {context.address_info.get('address')}")
-            failed = _run_tune(pending, output, cpus_per_trial, verbose)
+            resources = {"cpu": cpus_per_trial, "gpu": gpus_per_trial}
+            failed = _run_tune(pending, output, resources, verbose)
         finally:
             ray.shutdown()
     write_report(output, commit)

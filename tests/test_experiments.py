@@ -56,6 +56,15 @@ def test_the_interval_narrows_with_more_seeds_and_covers_the_truth():
     assert many[1] < 50.0 < many[2]
 
 
+def test_one_task_matches_scipys_percentile_bootstrap():
+    from scipy import stats
+
+    scores = np.array([81.0, 85.5, 90.2, 78.4, 88.8, 84.1])
+    _, low, high = stratified_bootstrap_ci(scores, mean, reps=20_000)
+    reference = stats.bootstrap((scores,), np.mean, n_resamples=20_000, method="percentile", rng=0).confidence_interval
+    assert low == pytest.approx(reference.low, abs=0.15) and high == pytest.approx(reference.high, abs=0.15)
+
+
 def test_the_bootstrap_resamples_within_each_task():
     # task 0 varies across runs, task 1 is constant: a stratified replicate always holds 3 runs of each task, so the
     # mean never leaves [mean of task 1 with task 0's min, ... max]

@@ -1,8 +1,9 @@
-"""The ``sb3-latentswarm`` command: ``train``, ``evaluate`` and ``render``.
+"""The ``sb3-latentswarm`` command: ``train``, ``evaluate``, ``render`` and ``sweep``.
 
     sb3-latentswarm train --preset demo --evaluate          # the README's main job
     sb3-latentswarm evaluate --model runs/demo/model.zip --p-fail-sweep   # on the env config saved with the model
     sb3-latentswarm render --model runs/demo/model.zip --output episode.gif
+    sb3-latentswarm sweep --preset fast --seeds 5           # seeds x variants on Ray Tune, across-seed intervals
 """
 
 from __future__ import annotations
@@ -183,6 +184,64 @@ def command_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _overrides_of(option: str, pairs: list[str]) -> dict[str, Any]:
+    """:func:`parse_overrides` for another option than ``--set`` (its messages name that option)."""
+    try:
+        return parse_overrides(pairs)
+    except ValueError as error:
+        raise ValueError(str(error).replace("--set", option, 1)) from None
+
+
+def _parse_grid(pairs: list[str]) -> dict[str, list[Any]]:
+    """``["p_fail=0.1,0.3"]`` -> ``{"p_fail": [0.1, 0.3]}`` (values typed like ``--set``'s)."""
+    grid: dict[str, list[Any]] = {}
+    for pair in pairs:
+        name, _, raw = pair.partition("=")
+        if not raw:
+            raise ValueError(f"--grid expects FIELD=V1,V2,..., got {pair!r}")
+        grid[name] = [_overrides_of("--grid", [f"{name}={value}"])[name] for value in raw.split(",")]
+    return grid
+
+
+def _parse_eval_set(text: str):
+    """``"burst10=outage_model=gilbert_elliott,mean_outage_steps=10,conditions=proposed+no_predictor"`` -> EvalSet."""
+    from sb3_latentswarm.experiments import EvalSet
+
+    name, _, raw = text.partition("=")
+    if not name or not raw:
+        raise ValueError(f"--eval-set expects NAME=FIELD=VALUE[,FIELD=VALUE...][,conditions=C1+C2], got {text!r}")
+    pairs = raw.split(",")
+    conditions = [pair.partition("=")[2] for pair in pairs if pair.startswith("conditions=")]
+    overrides = _overrides_of(f"--eval-set {name}", [pair for pair in pairs if not pair.startswith("conditions=")])
+    return EvalSet(name, overrides, tuple(conditions[-1].split("+")) if conditions else None)
+
+
+def command_sweep(args: argparse.Namespace) -> int:
+    from sb3_latentswarm.experiments import run_sweep
+
+    try:
+        run_sweep(
+            args.preset,
+            args.seeds,
+            variants=args.variant or ("proposed", "no_comm", "independent"),
+            grid=_parse_grid(args.grid or []),
+            overrides=parse_overrides(args.set or []),
+            extra_eval_sets=[_parse_eval_set(text) for text in args.eval_set or []],
+            eval_episodes=args.eval_episodes,
+            deterministic=not args.stochastic,
+            address=args.address,
+            cpus_per_trial=args.cpus_per_trial,
+            gpus_per_trial=args.gpus_per_trial,
+            output=args.output,
+            resume=args.resume,
+            verbose=args.verbose,
+        )
+    except RuntimeError as error:  # failed trials: the finished ones are reported, --resume retries the rest
+        print(f"sb3-latentswarm sweep: {error}", file=sys.stderr)
+        return 1
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sb3-latentswarm", description="Train and evaluate latent-state UAV swarms.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -241,6 +300,33 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--output", default="episode.gif", help="file ending in .gif or .mp4 (needs imageio-ffmpeg)")
     render.add_argument("--fps", type=positive_int, default=10)
     render.set_defaults(func=command_render)
+
+    sweep = sub.add_parser("sweep", help="train seeds x variants (x a grid) on Ray Tune; across-seed intervals (extra sweep)")
+    sweep.add_argument("--preset", required=True, choices=sorted(PRESETS), help="env, algorithm settings and budget")
+    sweep.add_argument("--seeds", type=int, required=True, help="training seeds 0 .. K-1 per variant and grid point")
+    sweep.add_argument(
+        "--variant",
+        nargs="+",
+        choices=("proposed", "no_comm", "independent"),
+        help="learners to train (default: all three); no_comm is LatentSwarmPPO trained with every link down",
+    )
+    sweep.add_argument("--grid", action="append", metavar="FIELD=V1,V2", help="SwarmConfig values to cross (repeatable)")
+    sweep.add_argument("--set", nargs="*", metavar="FIELD=VALUE", help="override SwarmConfig fields for every trial")
+    sweep.add_argument(
+        "--eval-set",
+        action="append",
+        metavar="NAME=FIELD=V,...",
+        help="an extra evaluation cell: config overrides, optionally conditions=C1+C2 (default: every condition)",
+    )
+    sweep.add_argument("--eval-episodes", type=positive_int, default=None, help="episodes per cell (default: the preset's)")
+    sweep.add_argument("--stochastic", action="store_true", help="evaluate with sampled actions (default: the mean action)")
+    sweep.add_argument("--address", default=None, help="Ray cluster to attach to (default: start Ray on this machine)")
+    sweep.add_argument("--cpus-per-trial", type=float, default=1.0, help="CPUs per trial (and its torch threads; default 1)")
+    sweep.add_argument("--gpus-per-trial", type=float, default=0.0, help="GPUs per trial (default 0: train on the CPU)")
+    sweep.add_argument("--output", default=None, help="result folder (default runs/sweeps/PRESET)")
+    sweep.add_argument("--resume", action="store_true", help="continue the sweep in --output; finished trials are kept")
+    sweep.add_argument("--verbose", type=int, default=1, help="Ray Tune console: 0 silent, 1 status table, 2 trial results")
+    sweep.set_defaults(func=command_sweep, threads=1)
     return parser
 
 

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 from sb3_contrib import RecurrentPPO
+from stable_baselines3.common.type_aliases import MaybeCallback
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from sb3_latentswarm.common.observations import as_vec_observation
@@ -78,6 +79,7 @@ def train_independent_ppo(
     hidden: int = 64,
     n_steps: int = 128,
     batch_size: int = 512,
+    callback: MaybeCallback = None,
     **kwargs: Any,
 ) -> IndependentRecurrentPPO:
     """Train sb3-contrib ``RecurrentPPO("MultiInputLstmPolicy")`` on each UAV's own observation.
@@ -85,6 +87,7 @@ def train_independent_ppo(
     :param vec_env: a swarm VecEnv from :func:`sb3_latentswarm.make_vec_env`
     :param total_timesteps: budget in agent-steps
     :param hidden: LSTM hidden size and MLP width
+    :param callback: SB3 callback(s) of ``learn`` (e.g. progress reports)
     """
     model = RecurrentPPO(
         "MultiInputLstmPolicy",
@@ -96,5 +99,5 @@ def train_independent_ppo(
         policy_kwargs=dict(lstm_hidden_size=hidden, net_arch=[hidden]),
         **kwargs,
     )
-    model.learn(total_timesteps=total_timesteps)
+    model.learn(total_timesteps=total_timesteps, callback=callback)
     return IndependentRecurrentPPO(model)

@@ -146,16 +146,16 @@ def _evaluate_and_print(
     print(f"\nTables written to {output}/")
 
 
-def _load_model(path: str, device: str):
+def _load_model(args: argparse.Namespace):
     from sb3_latentswarm.latent_ppo import LatentSwarmPPO
 
-    if not Path(path).exists():
-        raise ValueError(f"--model: no file at {path}")
-    return LatentSwarmPPO.load(path, device=device)
+    if not Path(args.model).exists():
+        raise ValueError(f"--model: no file at {args.model}")
+    return LatentSwarmPPO.load(args.model, device=args.device, trust_pickle=args.trust_pickle)
 
 
 def command_evaluate(args: argparse.Namespace) -> int:
-    model = _load_model(args.model, args.device)
+    model = _load_model(args)
     preset = _preset_from_args(args, model)
     if args.episodes:
         preset = dataclasses.replace(preset, eval_episodes=args.episodes)
@@ -168,7 +168,7 @@ def command_evaluate(args: argparse.Namespace) -> int:
 def command_render(args: argparse.Namespace) -> int:
     from sb3_latentswarm.rendering import render_episode
 
-    model = _load_model(args.model, args.device) if args.model else None
+    model = _load_model(args) if args.model else None
     preset = _preset_from_args(args, model)
     path = render_episode(
         model,
@@ -209,6 +209,14 @@ def build_parser() -> argparse.ArgumentParser:
             help="sample the policy's Gaussian actions when evaluating or rendering (default: its mean action)",
         )
 
+    def add_trust_pickle(p: argparse.ArgumentParser) -> None:
+        p.add_argument(
+            "--trust-pickle",
+            action="store_true",
+            help="also load model files with pickled attributes (SB3's format, older sb3-latentswarm files); unpickling "
+            "runs code from the file: only for files you trust",
+        )
+
     train = sub.add_parser("train", help="train LatentSwarmPPO on a preset")
     add_common(train, "demo")
     train.add_argument("--total-timesteps", type=positive_int, default=None, help="override the preset's budget (agent-steps)")
@@ -222,6 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate = sub.add_parser("evaluate", help="evaluate a saved model on the five conditions of Table I")
     add_common(evaluate, None)
     evaluate.add_argument("--model", required=True)
+    add_trust_pickle(evaluate)
     evaluate.add_argument("--episodes", type=positive_int, default=None, help="episodes per row (default: the preset's)")
     evaluate.add_argument("--p-fail-sweep", action="store_true", help="also run the p_f sweep of Table I (right)")
     evaluate.add_argument("--no-baselines", action="store_true")
@@ -231,6 +240,7 @@ def build_parser() -> argparse.ArgumentParser:
     render = sub.add_parser("render", help="write an animated GIF (or MP4) of one episode and a trajectory figure")
     add_common(render, None)
     render.add_argument("--model", default=None, help="saved model (default: random actions)")
+    add_trust_pickle(render)
     render.add_argument("--condition", default="proposed")
     render.add_argument("--output", default="episode.gif", help="file ending in .gif or .mp4 (needs imageio-ffmpeg)")
     render.add_argument("--fps", type=positive_int, default=10)

@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import math
+import os
 from collections.abc import Iterator, Sequence
 from typing import Any
 
@@ -141,6 +142,17 @@ def policy_switches(policy: LatentSwarmPolicy, condition: str) -> Iterator[Laten
     finally:
         policy.no_predictor, policy.no_memory = saved[0], saved[1]
         policy.set_training_mode(saved[2])
+
+
+def _resolve_model(model: Any) -> Any:
+    """A path is a saved :class:`~sb3_latentswarm.LatentSwarmPPO`, loaded safely (a pickled file is refused)."""
+    if not isinstance(model, (str, os.PathLike)):
+        return model
+    from sb3_latentswarm.latent_ppo import LatentSwarmPPO
+
+    if not os.path.isfile(model):
+        raise ValueError(f"model: no file at {model}")
+    return LatentSwarmPPO.load(model, device="cpu")
 
 
 def _latent_policy(model: Any) -> LatentSwarmPolicy | None:
@@ -377,7 +389,7 @@ def _episode_row(k: int, seed: int, summary: dict[str, Any], log: _EpisodeLog, h
 def evaluate(
     model: Any,
     condition: str = "proposed",
-    p_fail: float | None = 0.3,
+    p_fail: float | None = None,
     n_episodes: int = 10,
     seed: int = 0,
     config: SwarmConfig | None = None,
@@ -389,9 +401,11 @@ def evaluate(
 
     :param model: a :class:`~sb3_latentswarm.LatentSwarmPPO`, a :class:`~sb3_latentswarm.LatentSwarmPolicy`, or any
         object with a recurrent ``predict(obs, state, episode_start, deterministic)`` over env-major slots (e.g. the
-        planners of :mod:`sb3_latentswarm.baselines`, which get no policy diagnostics: NaN)
+        planners of :mod:`sb3_latentswarm.baselines`, which get no policy diagnostics: NaN); or the path of a saved
+        LatentSwarmPPO, loaded with :meth:`~sb3_latentswarm.LatentSwarmPPO.load` (which refuses pickled files)
     :param condition: one of :data:`CONDITIONS`
-    :param p_fail: p_f, the link failure probability of the channel (paper: 0.3); ``None`` keeps the config's
+    :param p_fail: p_f, the link failure probability of the channel; ``None`` (default) keeps the config's (the
+        paper's 0.3 in ``SwarmConfig()`` and the presets)
     :param n_episodes: number of episodes (paper: 10 Monte Carlo runs)
     :param seed: episode ``k`` uses env seed ``seed + k`` (and, if stochastic, action-noise seed ``seed + k``)
     :param config: the env configuration; default: the model's training config if it carries one (``model.env``'s
@@ -409,6 +423,7 @@ def evaluate(
         value after the episode ends.
     """
     _check_condition(condition)
+    model = _resolve_model(model)
     if isinstance(n_episodes, bool) or not isinstance(n_episodes, (int, np.integer)) or n_episodes < 1:
         raise ValueError(f"n_episodes must be an int >= 1, got {n_episodes!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -455,7 +470,7 @@ def evaluate(
 def evaluate_conditions(
     model: Any,
     conditions: Sequence[str] = CONDITIONS,
-    p_fail: float | None = 0.3,
+    p_fail: float | None = None,
     n_episodes: int = 10,
     seed: int = 0,
     config: SwarmConfig | None = None,
@@ -469,6 +484,7 @@ def evaluate_conditions(
     """
     for condition in conditions:
         _check_condition(condition)
+    model = _resolve_model(model)
     frames, curves = [], {}
     for condition in conditions:
         df, curves[condition] = evaluate(model, condition, p_fail, n_episodes, seed, config, return_curves=True, **kwargs)
@@ -493,6 +509,7 @@ def evaluate_p_fail_sweep(
     :return: the concatenated per-episode DataFrame; with ``return_curves`` also ``{p_fail: curves}``
     """
     p_fails = [_check_p_fail(p) for p in p_fails]
+    model = _resolve_model(model)
     frames, curves = [], {}
     for p in p_fails:
         df, curves[p] = evaluate(model, condition, p, n_episodes, seed, config, return_curves=True, **kwargs)

@@ -12,6 +12,7 @@ A subclass of sb3-contrib's ``RecurrentPPO``. What it changes and why (see ``doc
 
 from __future__ import annotations
 
+import io
 from collections import deque
 from typing import Any, ClassVar, TypeVar
 
@@ -28,6 +29,7 @@ from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
 from sb3_latentswarm.common.buffers import SwarmRolloutBuffer
 from sb3_latentswarm.common.schedules import paper_learning_rate
+from sb3_latentswarm.common.serialization import UnsafeModelFileError, load_plain, read_data, save_plain
 from sb3_latentswarm.common.type_aliases import LatentState
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy, SequenceEvaluation, check_observation_space
@@ -35,8 +37,11 @@ from sb3_latentswarm.version import __version__
 
 SelfLatentSwarmPPO = TypeVar("SelfLatentSwarmPPO", bound="LatentSwarmPPO")
 
-SAVE_FORMAT = 1
-"""Version of the saved-model layout; bumped when a change would make older files load wrongly."""
+SAVE_FORMAT = 2
+"""Version of the saved-model layout; bumped when a change would make older files load wrongly. 2: plain data, no
+pickle (:mod:`sb3_latentswarm.common.serialization`); 1: SB3's pickled attributes, read only with ``trust_pickle``."""
+
+PICKLED_SAVE_FORMATS = (1,)
 
 PAPER_LEARNING_RATE = paper_learning_rate()
 """1e-4 for the first 1000 of 1600 updates, 1e-5 after (Sec. IV)."""
@@ -64,12 +69,12 @@ def auxiliary_losses(evaluation: SequenceEvaluation, global_map: th.Tensor) -> t
     return map_loss, pred_loss
 
 
-def check_save_format(data: dict[str, Any] | None, path: Any) -> None:
+def check_save_format(data: dict[str, Any] | None, path: Any, formats: tuple[int, ...] = (SAVE_FORMAT,)) -> None:
     """Raise a clear ``ValueError`` when ``data`` (a saved model's attributes) is not a loadable LatentSwarmPPO file."""
     if not data or "save_format" not in data:
         raise ValueError(f"{path} was not saved by LatentSwarmPPO (no save_format); load it with the class that saved it")
     saved_format, saved_by = data["save_format"], data.get("saved_by_version", "unknown")
-    if saved_format != SAVE_FORMAT:
+    if saved_format not in formats:
         newer = "a newer" if saved_format > SAVE_FORMAT else "an older"
         raise ValueError(
             f"{path} was saved by {newer} sb3-latentswarm ({saved_by}, save format {saved_format}); this is "
@@ -189,12 +194,7 @@ class LatentSwarmPPO(RecurrentPPO):
         """The env config of training (saved with the model; the evaluation's default)."""
         if self.env is not None:
             self.n_agents = self._check_swarm_env(self.env)
-            sequence = self.n_agents * chunk_length
-            if batch_size is None or batch_size < sequence:
-                raise ValueError(
-                    f"batch_size must hold at least one whole swarm sequence (n_agents * chunk_length = {sequence} "
-                    f"agent-steps), got batch_size={batch_size}"
-                )
+            self._check_batch_size()
         if _init_setup_model:
             self._setup_model()
 
@@ -216,6 +216,16 @@ class LatentSwarmPPO(RecurrentPPO):
         if link_dim != n_agents:
             raise ValueError(f"observation 'link_row' has length {link_dim} but the env reports n_agents={n_agents}")
         return n_agents
+
+    def _check_batch_size(self) -> None:
+        """A minibatch must hold at least one whole (swarm, chunk) sequence of ``n_agents * chunk_length`` agent-steps."""
+        assert self.n_agents is not None
+        sequence = self.n_agents * self.chunk_length
+        if self.batch_size is None or self.batch_size < sequence:
+            raise ValueError(
+                f"batch_size must hold at least one whole swarm sequence (n_agents * chunk_length = {sequence} "
+                f"agent-steps), got batch_size={self.batch_size}"
+            )
 
     # ------------------------------------------------------------------ setup
     def _setup_model(self) -> None:
@@ -291,20 +301,46 @@ class LatentSwarmPPO(RecurrentPPO):
         custom_objects: dict[str, Any] | None = None,
         print_system_info: bool = False,
         force_reset: bool = True,
+        trust_pickle: bool = False,
         **kwargs,
     ) -> LatentSwarmPPO:
         """Load a model; ``env`` may have another number of agents or env copies than the training env.
 
-        Files of another save format fail with a ``ValueError`` naming both versions instead of loading wrongly.
+        Loading runs no code from the file: the attributes are plain JSON and the tensors are read with
+        ``torch.load(weights_only=True)`` (see :mod:`sb3_latentswarm.common.serialization`). ``kwargs`` replace saved
+        constructor arguments and pass the constructor's checks. Files of another save format fail with a
+        ``ValueError`` naming both versions instead of loading wrongly.
+
+        :param trust_pickle: also read files whose attributes are pickled (SB3's format, and this package's files
+            before save format 2). Unpickling runs whatever code the file carries: only for files you trust.
+        :param custom_objects: SB3's replacements for pickled attributes (with ``trust_pickle`` only)
+        :raise UnsafeModelFileError: (a ``ValueError``) for a pickled file without ``trust_pickle=True``
         """
-        data, _, _ = load_from_zip_file(path, device="cpu", custom_objects=custom_objects, load_data=True)
-        check_save_format(data, path)
-        model = super().load(
-            path, env=None, device=device, custom_objects=custom_objects, print_system_info=print_system_info, **kwargs
-        )
+        raw, pickled = read_data(path)
+        if pickled and not trust_pickle:
+            raise UnsafeModelFileError(path, pickled)
+        if pickled:
+            data, _, _ = load_from_zip_file(path, device="cpu", custom_objects=custom_objects, load_data=True)
+            check_save_format(data, path, PICKLED_SAVE_FORMATS)
+            trusted = super().load(path, env=None, device=device, custom_objects=custom_objects)
+            path = io.BytesIO()  # from here on the same path as a plain file, so that kwargs meet the same checks
+            trusted.save(path)
+            raw, _ = read_data(path)
+        check_save_format(raw, path)
+        model = load_plain(cls, path, raw, device=device, print_system_info=print_system_info, **kwargs)
+        model._check_batch_size()
         if env is not None:
             model.set_env(env, force_reset=force_reset)
         return model
+
+    def save(self, path, exclude=None, include=None) -> None:  # type: ignore[override]
+        """Save the model as plain data and tensors (no pickle): see :mod:`sb3_latentswarm.common.serialization`.
+
+        The file holds no path of this machine (``tensorboard_log`` is not kept) and no state of a rollout in progress.
+        """
+        self.save_format = SAVE_FORMAT
+        self.saved_by_version = __version__
+        save_plain(self, path, exclude=exclude, include=include)
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "_last_latent_state", "_swarm_summaries"]

@@ -13,6 +13,8 @@ A subclass of sb3-contrib's ``RecurrentPPO``. What it changes and why (see ``doc
 from __future__ import annotations
 
 import io
+import math
+import warnings
 from collections import deque
 from typing import Any, ClassVar, TypeVar
 
@@ -82,6 +84,37 @@ def check_save_format(data: dict[str, Any] | None, path: Any, formats: tuple[int
         )
 
 
+def _check_int(name: str, value: Any, low: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be an int, got {type(value).__name__} ({value!r})")
+    if value < low:
+        raise ValueError(f"{name} must be >= {low}, got {value}")
+
+
+def _check_number(name: str, value: Any, low: float, high: float = math.inf, low_open: bool = False) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__} ({value!r})")
+    if not math.isfinite(value) or value < low or (low_open and value == low) or value > high:
+        left = "(" if low_open else "["
+        raise ValueError(f"{name} must be a finite number in {left}{low}, {high}], got {value}")
+
+
+def _fitting_chunk_length(n_steps: int, chunk_length: int) -> int:
+    """``chunk_length``, or, when it does not divide ``n_steps``, the largest divisor of ``n_steps`` below it.
+
+    Every training sequence then has the same length (no padding), and a rollout of any length trains.
+    """
+    if n_steps % chunk_length == 0:
+        return chunk_length
+    fitting = max(d for d in range(1, min(chunk_length, n_steps) + 1) if n_steps % d == 0)
+    warnings.warn(
+        f"chunk_length={chunk_length} does not divide n_steps={n_steps}: training sequences of {fitting} steps are used "
+        f"(pass a chunk_length that divides n_steps to choose another)",
+        stacklevel=3,
+    )
+    return fitting
+
+
 def _env_config(env: VecEnv) -> SwarmConfig | None:
     config = getattr(env, "config", None)
     return config if isinstance(config, SwarmConfig) else None
@@ -110,7 +143,8 @@ class LatentSwarmPPO(RecurrentPPO):
     :param vf_coef: c1, weight of the value loss L_VF
     :param map_coef: c2, weight of the map-reconstruction loss L_map
     :param pred_coef: c3, weight of the message-prediction loss L_pred
-    :param chunk_length: steps per training sequence (MAPPO's data chunk); must divide ``n_steps``
+    :param chunk_length: steps per training sequence (MAPPO's data chunk); when it does not divide ``n_steps``, the
+        largest divisor of ``n_steps`` below it is used, with a warning
     :param max_grad_norm: gradient clipping norm
     :param target_kl: optional KL early stopping
     :param stats_window_size: episodes averaged in the rollout logs
@@ -153,13 +187,15 @@ class LatentSwarmPPO(RecurrentPPO):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ):
-        for name, value in (("map_coef", map_coef), ("pred_coef", pred_coef), ("vf_coef", vf_coef)):
-            if value < 0:
-                raise ValueError(f"{name} must be >= 0, got {value}")
-        if chunk_length < 1:
-            raise ValueError(f"chunk_length must be >= 1, got {chunk_length}")
-        if n_steps % chunk_length != 0:
-            raise ValueError(f"chunk_length must divide n_steps: n_steps={n_steps}, chunk_length={chunk_length}")
+        for name, value in (("n_steps", n_steps), ("batch_size", batch_size), ("n_epochs", n_epochs)):
+            _check_int(name, value, low=1)
+        _check_int("chunk_length", chunk_length, low=1)
+        for name, value in (("ent_coef", ent_coef), ("vf_coef", vf_coef), ("map_coef", map_coef), ("pred_coef", pred_coef)):
+            _check_number(name, value, low=0.0)
+        _check_number("max_grad_norm", max_grad_norm, low=0.0, low_open=True)
+        for name, value in (("gamma", gamma), ("gae_lambda", gae_lambda)):
+            _check_number(name, value, low=0.0, high=1.0)
+        chunk_length = _fitting_chunk_length(n_steps, chunk_length)
         super().__init__(
             policy,
             env,

@@ -23,10 +23,11 @@ class SwarmEvalCallback(BaseCallback):
     """Evaluate the swarm every ``eval_freq`` agent-steps and log coverage, collisions and steps to 90 % under ``eval/``.
 
     The evaluation runs at the end of the first rollout at or past each multiple of ``eval_freq`` (so between updates,
-    never inside a rollout: it evaluates the policy that collected that rollout), on its own env copies: training's envs and carried latent state are not touched. Each
-    swarm episode counts once. Logged keys (means over the ``n_eval_episodes`` swarm episodes): ``eval/coverage`` (final
-    coverage, %), ``eval/coverage_std``, ``eval/collisions``, ``eval/steps_to_90`` (over the episodes that reached
-    90 %; NaN when none did), ``eval/reached_90`` (fraction of episodes that reached 90 %), ``eval/episode_return``.
+    never inside a rollout: it evaluates the policy that collected that rollout), on its own env copies: training's
+    envs and carried latent state are not touched. Each swarm episode counts once. Logged keys (means over the
+    ``n_eval_episodes`` swarm episodes): ``eval/coverage`` (final coverage, %), ``eval/coverage_std``,
+    ``eval/collisions``, ``eval/steps_to_90`` (over the episodes that reached 90 %; NaN when none did),
+    ``eval/reached_90`` (fraction of episodes that reached 90 %), ``eval/episode_return``.
 
     :param eval_freq: agent-steps between evaluations (SB3's ``num_timesteps``; one update is ``n_steps * n_envs *
         n_agents`` of them)

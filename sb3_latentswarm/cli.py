@@ -139,7 +139,10 @@ def _evaluate_and_print(
     )
 
     config, episodes, seed = preset.config, preset.eval_episodes, args.seed
-    policy_kwargs = dict(n_episodes=episodes, seed=seed, config=config, deterministic=not args.stochastic)
+    progress_bar = sys.stderr.isatty() and not args.no_progress
+    policy_kwargs = dict(
+        n_episodes=episodes, seed=seed, config=config, deterministic=not args.stochastic, progress_bar=progress_bar
+    )
     frames = [evaluate_conditions(model, conditions=CONDITIONS, p_fail=config.p_fail, **policy_kwargs)]
     if baselines:
         from sb3_latentswarm.baselines import FrontierPlanner, LawnmowerPlanner, RandomPlanner
@@ -149,7 +152,9 @@ def _evaluate_and_print(
             ("lawnmower", LawnmowerPlanner(config)),
             ("frontier", FrontierPlanner(config)),
         ):
-            frame = evaluate(planner, p_fail=config.p_fail, n_episodes=episodes, seed=seed, config=config)
+            frame = evaluate(
+                planner, p_fail=config.p_fail, n_episodes=episodes, seed=seed, config=config, progress_bar=progress_bar
+            )
             frame["condition"] = label
             frames.append(frame)
     import pandas as pd
@@ -288,6 +293,7 @@ def build_parser() -> argparse.ArgumentParser:
             default=1,
             help="torch CPU threads (default 1: the small recurrent nets run fastest single-threaded; 0 keeps torch's)",
         )
+        p.add_argument("--no-progress", action="store_true", help="no progress bars (shown on a terminal otherwise)")
         p.add_argument(
             "--stochastic",
             action="store_true",
@@ -308,7 +314,6 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--output", default=None, help="folder for model.zip and tables (default runs/PRESET)")
     train.add_argument("--evaluate", action="store_true", help="evaluate all conditions and baselines afterwards")
     train.add_argument("--tensorboard", default=None, help="TensorBoard log folder")
-    train.add_argument("--no-progress", action="store_true", help="no progress bar")
     train.add_argument("--verbose", type=int, default=0)
     train.set_defaults(func=command_train)
 

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import torch as th
+from tqdm.auto import tqdm
 
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.envs.swarm_recon import ACTOR_OBS_KEYS, SwarmReconEnv
@@ -292,8 +293,12 @@ def _run_episodes(
     n_envs: int,
     stochastic_noise: bool,
     action_dim: int,
+    progress: tqdm | None = None,
 ) -> tuple[list[dict[str, Any]], np.ndarray]:
-    """Run ``n_episodes`` episodes in ``n_envs`` lockstep copies; return one row per episode and the coverage curves."""
+    """Run ``n_episodes`` episodes in ``n_envs`` lockstep copies; return one row per episode and the coverage curves.
+
+    ``progress``, if given, advances by one per finished episode.
+    """
     n = config.n_agents
     envs = [SwarmReconEnv(config) for _ in range(n_envs)]
     agents = envs[0].possible_agents
@@ -359,6 +364,8 @@ def _run_episodes(
                 curves[k, steps[copy] + 1 :] = curves[k, steps[copy]]
                 rows[k] = _episode_row(k, seed, infos[agents[0]]["swarm_summary"], logs[k], map_error is not None)
                 episode_of[copy] = -1
+                if progress is not None:
+                    progress.update()
                 if next_episode < n_episodes:
                     start(copy)
             else:
@@ -396,6 +403,7 @@ def evaluate(
     deterministic: bool = True,
     n_envs: int | None = None,
     return_curves: bool = False,
+    progress_bar: bool = False,
 ) -> pd.DataFrame | tuple[pd.DataFrame, np.ndarray]:
     """Evaluate ``model`` under one condition of Sec. IV; one row per episode (Monte Carlo run).
 
@@ -414,6 +422,7 @@ def evaluate(
     :param deterministic: act with the mean action (``False``: sample the Gaussian policy)
     :param n_envs: env copies stepped in lockstep (default: ``min(n_episodes, 64)``)
     :param return_curves: also return the coverage curves
+    :param progress_bar: show a progress bar of finished episodes (tqdm, on stderr)
     :return: the per-episode DataFrame (columns :data:`EPISODE_COLUMNS`: ``coverage`` is the final coverage in %,
         ``steps_to_90`` is NaN when 90 % was never reached, ``map_error`` is the mean over agent-steps of the per-cell
         squared error between D(mu_t^i) and M_hat_t, ``pred_error_dropout`` the mean over dropout agent-steps of the
@@ -441,6 +450,8 @@ def evaluate(
     _check_geometry(model, policy, config)
     n_envs = min(int(n_envs), int(n_episodes))
 
+    description = f"{condition}, p_f={config.p_fail:g}"
+    progress = tqdm(total=int(n_episodes), desc=description, unit="episode", leave=False) if progress_bar else None
     if policy is None:
         if not callable(getattr(model, "predict", None)):
             raise TypeError(
@@ -453,12 +464,16 @@ def evaluate(
                 f"{type(model).__name__} has none (use 'proposed', 'full_comm' or 'no_comm')"
             )
         actor: _LatentActor | _PredictActor = _PredictActor(model, deterministic)
-        rows, curves = _run_episodes(actor, config, int(n_episodes), int(seed), n_envs, False, 0)
+        rows, curves = _run_episodes(actor, config, int(n_episodes), int(seed), n_envs, False, 0, progress)
     else:
         with policy_switches(policy, condition):
             actor = _LatentActor(policy, n_envs * config.n_agents, config.n_agents)
             action_dim = int(np.prod(policy.action_space.shape))
-            rows, curves = _run_episodes(actor, config, int(n_episodes), int(seed), n_envs, not deterministic, action_dim)
+            rows, curves = _run_episodes(
+                actor, config, int(n_episodes), int(seed), n_envs, not deterministic, action_dim, progress
+            )
+    if progress is not None:
+        progress.close()
 
     df = pd.DataFrame(rows)
     df.insert(2, "condition", condition)
@@ -479,7 +494,7 @@ def evaluate_conditions(
 ) -> pd.DataFrame | tuple[pd.DataFrame, dict[str, np.ndarray]]:
     """:func:`evaluate` under each condition (Table I, left), with the same seeds (same maps and starts).
 
-    :param kwargs: further :func:`evaluate` arguments (``deterministic``, ``n_envs``)
+    :param kwargs: further :func:`evaluate` arguments (``deterministic``, ``n_envs``, ``progress_bar``)
     :return: the concatenated per-episode DataFrame; with ``return_curves`` also ``{condition: curves}``
     """
     for condition in conditions:
@@ -505,7 +520,7 @@ def evaluate_p_fail_sweep(
 ) -> pd.DataFrame | tuple[pd.DataFrame, dict[float, np.ndarray]]:
     """:func:`evaluate` at each link failure probability (Table I, right), with the same seeds.
 
-    :param kwargs: further :func:`evaluate` arguments (``deterministic``, ``n_envs``)
+    :param kwargs: further :func:`evaluate` arguments (``deterministic``, ``n_envs``, ``progress_bar``)
     :return: the concatenated per-episode DataFrame; with ``return_curves`` also ``{p_fail: curves}``
     """
     p_fails = [_check_p_fail(p) for p in p_fails]

@@ -33,7 +33,7 @@ def main() -> None:
     parser.add_argument("--chunk-length", type=int, default=32)
     parser.add_argument("--n-epochs", type=int, default=4)
     parser.add_argument("--iterations", type=int, default=3, help="rollout/update iterations timed")
-    parser.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    parser.add_argument("--threads", type=int, default=0, help="torch threads (0: the package default)")
     args = parser.parse_args()
     if args.threads:
         th.set_num_threads(args.threads)

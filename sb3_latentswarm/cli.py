@@ -290,8 +290,9 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument(
             "--threads",
             type=int,
-            default=1,
-            help="torch CPU threads (default 1: the small recurrent nets run fastest single-threaded; 0 keeps torch's)",
+            default=0,
+            help="torch CPU threads (default 0: the package default of one thread, the fastest for these small "
+            "recurrent nets on a loaded CPU; see sb3_latentswarm.common.threads)",
         )
         p.add_argument("--no-progress", action="store_true", help="no progress bars (shown on a terminal otherwise)")
         p.add_argument(

@@ -18,13 +18,25 @@ from sb3_latentswarm.rendering import render_episode, run_episode
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run_script(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=300)
+def run_script(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, *args], cwd=cwd, capture_output=True, text=True, timeout=300)
+
+
+def test_reproduce_table1_help_describes_every_option():
+    result = run_script("examples/reproduce_table1.py", "--help")
+    assert result.returncode == 0, result.stderr
+    options = result.stdout.split("options:")[1]
+    for name in ("--preset", "--model", "--output", "--episodes", "--stochastic", "--independent-model", "--threads"):
+        assert name in options, name
+    assert "default: runs/table1_PRESET" in options and "Monte Carlo runs per condition" in options
 
 
 def test_reproduce_table1_smoke(tmp_path):
-    result = run_script("examples/reproduce_table1.py", "--preset", "smoke", "--output", str(tmp_path))
+    # run from another folder without --output: the results go under runs/, never into docs/results/
+    result = run_script(str(ROOT / "examples" / "reproduce_table1.py"), "--preset", "smoke", cwd=tmp_path)
     assert result.returncode == 0, result.stderr
+    assert [p.relative_to(tmp_path).as_posix() for p in tmp_path.iterdir()] == ["runs"]
+    tmp_path = tmp_path / "runs" / "table1_smoke"
     conditions = pd.read_csv(tmp_path / "conditions.csv")
     assert set(conditions["condition"]) == {"proposed", "full_comm", "no_comm", "no_predictor", "no_memory"}
     sweep = pd.read_csv(tmp_path / "p_fail_sweep.csv")
@@ -239,3 +251,16 @@ def test_cli_evaluations_record_their_config_and_never_mix(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main([*evaluate, "--set", "p_fail=0.5", "--output", str(first)])
     assert "holds the tables of another evaluation" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("variables, expected", [({}, 1), ({"OMP_NUM_THREADS": "2"}, 2)])
+def test_importing_the_package_applies_the_thread_default_unless_the_environment_chose(variables, expected):
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+    code = "import torch; torch.set_num_threads(2); import sb3_latentswarm; print(torch.get_num_threads())"
+    result = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, env={**env, **variables}, capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 0, result.stderr
+    assert int(result.stdout) == expected

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import inspect
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -15,7 +16,11 @@ import numpy as np
 
 sys.path.insert(0, os.path.abspath(".."))
 
+from sphinx.util import logging  # noqa: E402
+
 from sb3_latentswarm.version import __version__  # noqa: E402
+
+logger = logging.getLogger(__name__)
 
 project = "sb3-latentswarm"
 author = "sb3-latentswarm contributors"
@@ -55,60 +60,75 @@ DOCS_DIR = Path(__file__).resolve().parent
 RESULTS_DIR = DOCS_DIR / "results"
 IMAGE_SUFFIXES = (".png", ".svg", ".gif", ".jpg")
 DATA_SUFFIXES = (".csv", ".json", ".txt", ".pdf")
-
-
-def _include(path: Path, heading_offset: int) -> list[str]:
-    rel = path.relative_to(DOCS_DIR).as_posix()
-    return [f"```{{include}} {rel}", f":heading-offset: {heading_offset}", ":relative-images:", "```", ""]
+# results.md places each results folder with a line `<!-- results-folder: NAME -->` under a heading of its own, so the
+# page's order and titles are chosen by its author, not by the folders' alphabetical order.
+RESULTS_MARKER = re.compile(r"^<!-- results-folder: ([\w.-]+) -->$", re.MULTILINE)
+# What each plot that the scripts write shows; the caption under it in results.md.
+PLOT_CAPTIONS = {
+    "coverage_vs_time": "Mean coverage (%) against the episode's step under each condition of Table I, p_f = 0.3.",
+    "coverage_vs_p_fail": "Final coverage (%) against the link failure probability p_f (proposed model), next to the "
+    "paper's Table I (right).",
+    "learning_curve": "Mean final coverage (%) against PPO updates under each condition, with mean and sampled "
+    "actions; bands are 95 % confidence intervals of the mean.",
+    "episode": "One evaluation episode (proposed condition): the UAVs, their links and the coverage map.",
+    "episode_trajectories": "The UAVs' trajectories in that episode (o: start, x: a UAV in dropout).",
+}
 
 
 def _results_folder(folder: Path) -> list[str]:
-    """MyST for one results folder (``docs/results/`` itself or one ``docs/results/<run>/``).
+    """MyST for one ``docs/results/<run>/`` folder, placed under a heading that ``results.md`` writes.
 
-    A folder with a ``run.md`` (what ``examples/reproduce_table1.py`` writes) is shown through that report, whose
-    ``#`` heading becomes a level-3 heading; otherwise each markdown file is included under a heading of its own.
-    Images are shown and data files linked for download; anything else (``model.zip``) is left out.
+    The folder's ``run.md`` (what the example scripts write, which holds its tables) is included without its own ``#``
+    title, its ``##`` headings one level below the section's (a folder without one: each markdown file); its plots
+    follow as figures with a caption each and its data files as download links. Anything else (``model.zip``) is left
+    out.
     """
     files = sorted(p for p in folder.iterdir() if p.is_file())
     markdown = [p for p in files if p.suffix.lower() == ".md" and p.name.lower() != "readme.md"]
     images = [p for p in files if p.suffix.lower() in IMAGE_SUFFIXES]
     data = [p for p in files if p.suffix.lower() in DATA_SUFFIXES]
-    if not (markdown or images or data):
-        return []
+    if folder / "run.md" in markdown:
+        markdown = [folder / "run.md"]
     rel = folder.relative_to(DOCS_DIR).as_posix()
-    report = folder / "run.md"
-    if report in markdown:
-        parts = _include(report, heading_offset=2)
-    else:
-        parts = [f"### `{rel}/`", ""]
-        for path in markdown:
-            parts += [f"#### {path.stem}", ""] + _include(path, heading_offset=3)
-    if images:
-        parts += ["#### Plots", ""]
-        for path in images:
-            parts += [f"```{{image}} {rel}/{path.name}", f":alt: {path.stem}", "```", ""]
+    parts: list[str] = []
+    for path in markdown:
+        lines = path.read_text(encoding="utf-8").splitlines()
+        has_title = bool(lines) and lines[0].startswith("# ")
+        parts += [f"```{{include}} {path.relative_to(DOCS_DIR).as_posix()}"]
+        parts += [":start-line: 1"] if has_title else []
+        parts += [":heading-offset: 2", ":relative-images:", "```", ""]
+    for path in images:
+        caption = PLOT_CAPTIONS.get(path.stem, path.stem.replace("_", " ").capitalize() + ".")
+        parts += [f"```{{figure}} {rel}/{path.name}", f":alt: {path.stem}", "", caption, "```", ""]
     if data:
-        parts += ["#### Data", ""]
-        parts += [f"- {{download}}`{path.name} <{rel}/{path.name}>`" for path in data] + [""]
+        parts += ["Data: " + ", ".join(f"{{download}}`{path.name} <{rel}/{path.name}>`" for path in data), ""]
     return parts
 
 
-def results_listing() -> str:
-    """MyST text appended to ``results.md``: the contents of ``docs/results/`` and of each of its sub-folders."""
-    if not RESULTS_DIR.is_dir():
-        return "\n*No results have been generated yet: `docs/results/` does not exist.*\n"
-    folders = [RESULTS_DIR] + sorted(p for p in RESULTS_DIR.iterdir() if p.is_dir() and not p.name.startswith((".", "_")))
-    parts: list[str] = []
-    for folder in folders:
-        parts += _results_folder(folder)
-    if not parts:
-        return "\n*No results have been generated yet: `docs/results/` holds no tables or plots.*\n"
-    return "\n" + "\n".join(parts)
+def _place_results(text: str) -> str:
+    """Replace each results marker of ``results.md`` by its folder; a folder no marker places is a build warning."""
+    placed = set(RESULTS_MARKER.findall(text))
+    present = sorted(p.name for p in RESULTS_DIR.iterdir() if p.is_dir() and not p.name.startswith((".", "_")))
+    for name in sorted(placed - set(present)):
+        logger.warning("results.md places docs/results/%s/, which does not exist", name, location="results")
+    for name in sorted(set(present) - placed):
+        logger.warning(
+            "docs/results/%s/ is not on the results page: add a heading and `<!-- results-folder: %s -->` to results.md",
+            name,
+            name,
+            location="results",
+        )
+
+    def section(match: re.Match) -> str:
+        folder = RESULTS_DIR / match.group(1)
+        return "\n".join(_results_folder(folder)) if folder.is_dir() else ""
+
+    return RESULTS_MARKER.sub(section, text)
 
 
 def _append_results(app, docname: str, source: list[str]) -> None:
     if docname == "results":
-        source[0] += results_listing()
+        source[0] = _place_results(source[0])
 
 
 # ---------------------------------------------------------------------------------------------- presets

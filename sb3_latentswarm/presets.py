@@ -43,9 +43,55 @@ class Preset:
         per_update = self.algo_kwargs["n_steps"] * self.n_envs * self.config.n_agents
         return max(1, -(-self.total_timesteps // per_update))
 
-    def with_overrides(self, **config_overrides: Any) -> Preset:
-        """A copy with env config fields replaced (validated)."""
-        return dataclasses.replace(self, config=self.config.replace(**config_overrides))
+    def with_overrides(self, **overrides: Any) -> Preset:
+        """A copy with settings replaced, each routed by its name (see :func:`override_targets`).
+
+        ``SwarmConfig`` fields are validated here by ``SwarmConfig`` itself; ``LatentSwarmPPO`` and
+        ``LatentSwarmPolicy`` arguments are validated by their constructors when the model is built.
+
+        :raise TypeError: for a name that is none of those, listing the valid names
+        """
+        targets = override_targets()
+        unknown = sorted(set(overrides) - {name for names in targets.values() for name in names})
+        if unknown:
+            valid = "; ".join(f"{target}: {', '.join(names)}" for target, names in targets.items())
+            raise TypeError(f"unknown setting(s) {unknown}; valid settings are {valid}")
+        pick = {target: {k: v for k, v in overrides.items() if k in names} for target, names in targets.items()}
+        algo_kwargs = {**self.algo_kwargs, **pick["LatentSwarmPPO"]}
+        if pick["LatentSwarmPolicy"]:
+            algo_kwargs["policy_kwargs"] = {**self.algo_kwargs.get("policy_kwargs", {}), **pick["LatentSwarmPolicy"]}
+        return dataclasses.replace(
+            self, config=self.config.replace(**pick["SwarmConfig"]), algo_kwargs=algo_kwargs, **pick["Preset"]
+        )
+
+
+PRESET_SETTINGS = ("n_envs", "eval_episodes")
+"""Fields of :class:`Preset` that ``--set`` may replace."""
+
+_NOT_OVERRIDABLE = ("self", "policy", "env", "device", "_init_setup_model", "policy_kwargs", "tensorboard_log", "verbose",
+                    "seed", "observation_space", "action_space", "lr_schedule", "optimizer_class")
+
+
+def override_targets() -> dict[str, tuple[str, ...]]:
+    """The names that :meth:`Preset.with_overrides` (and the CLI's ``--set``) accept, by where each one goes.
+
+    Taken from the code (the dataclass fields and the constructors' signatures), so new options need no change here.
+    ``seed``, ``verbose``, ``tensorboard_log`` and ``device`` have CLI flags of their own.
+    """
+    import inspect
+
+    from sb3_latentswarm.latent_ppo import LatentSwarmPolicy, LatentSwarmPPO
+
+    def arguments(function) -> tuple[str, ...]:
+        parameters = inspect.signature(function).parameters.values()
+        return tuple(p.name for p in parameters if p.kind is p.POSITIONAL_OR_KEYWORD and p.name not in _NOT_OVERRIDABLE)
+
+    return {
+        "SwarmConfig": tuple(f.name for f in dataclasses.fields(SwarmConfig) if f.name != "extra"),
+        "Preset": PRESET_SETTINGS,
+        "LatentSwarmPPO": arguments(LatentSwarmPPO.__init__),
+        "LatentSwarmPolicy": arguments(LatentSwarmPolicy.__init__),
+    }
 
 
 MAPPO_TRAINING: dict[str, Any] = dict(normalize_value=True, value_loss="huber", grad_clip="per_group")

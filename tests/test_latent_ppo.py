@@ -315,10 +315,42 @@ def test_clear_errors_for_unsuitable_envs():
 
     with pytest.raises(TypeError, match="Dict observation space"):
         LatentSwarmPPO("LatentSwarmPolicy", DummyVecEnv([lambda: gym.make("Pendulum-v1")]))
-    with pytest.raises(ValueError, match="chunk_length must divide n_steps"):
-        make_model(n_steps=21)
     with pytest.raises(ValueError, match="batch_size must hold at least one whole swarm"):
         make_model(batch_size=10)
+
+
+@pytest.mark.parametrize(
+    "kwargs, error, message",
+    [
+        (dict(n_steps=0), ValueError, "n_steps must be >= 1, got 0"),
+        (dict(n_steps=-5), ValueError, "n_steps must be >= 1, got -5"),
+        (dict(n_steps=2.5), TypeError, r"n_steps must be an int, got float \(2.5\)"),
+        (dict(pred_coef="5"), TypeError, r"pred_coef must be a number, got str \('5'\)"),
+        (dict(map_coef=float("nan")), ValueError, "map_coef must be a finite number in \\[0.0, inf\\], got nan"),
+        (dict(vf_coef=float("inf")), ValueError, "vf_coef must be a finite number"),
+        (dict(ent_coef=-0.1), ValueError, "ent_coef must be a finite number in"),
+        (dict(max_grad_norm=0.0), ValueError, "max_grad_norm must be a finite number in \\(0.0"),
+        (dict(gamma=1.5), ValueError, "gamma must be a finite number in \\[0.0, 1.0\\]"),
+    ],
+)
+def test_bad_hyperparameters_fail_up_front(kwargs, error, message):
+    with pytest.raises(error, match=message):
+        make_model(**kwargs)
+
+
+@pytest.mark.parametrize("n_steps, chunk_length", [(32, 16), (100, 25), (21, 21), (26, 13)])
+def test_rollouts_the_chunk_length_does_not_divide_train_on_fitting_chunks(n_steps, chunk_length):
+    config = SMALL.replace(max_steps=10)
+    env = make_vec_env(2, config=config, seed=0)
+    kwargs = dict(n_steps=n_steps, batch_size=6 * n_steps, n_epochs=1, policy_kwargs=TINY_POLICY, seed=0)
+    if n_steps % 25:
+        with pytest.warns(UserWarning, match=f"training sequences of {chunk_length} steps"):
+            model = LatentSwarmPPO("LatentSwarmPolicy", env, **kwargs)
+    else:
+        model = LatentSwarmPPO("LatentSwarmPolicy", env, **kwargs)
+    assert model.chunk_length == chunk_length
+    model.learn(total_timesteps=6 * n_steps)
+    assert model._n_updates == 1
 
 
 def test_logs_paper_keys(tmp_path):

@@ -416,8 +416,12 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("proposed", "no_comm", "independent"),
         help="learners to train (default: all three); no_comm is LatentSwarmPPO trained with every link down",
     )
-    sweep.add_argument("--grid", action="append", metavar="FIELD=V1,V2", help="SwarmConfig values to cross (repeatable)")
-    sweep.add_argument("--set", nargs="*", metavar="FIELD=VALUE", help="override SwarmConfig fields for every trial")
+    sweep.add_argument(
+        "--grid", action="append", metavar="NAME=V1,V2", help="settings to cross, any name --set takes (repeatable)"
+    )
+    sweep.add_argument(
+        "--set", nargs="+", action="extend", metavar="NAME=VALUE", help="settings for every trial, as train's --set"
+    )
     sweep.add_argument(
         "--eval-set",
         action="append",

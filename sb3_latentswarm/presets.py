@@ -170,7 +170,8 @@ def _coordination() -> Preset:
     # the T = 80 steps. Coordinated planners cover 97-100 %, the best message-free heuristic 72 % (benchmarks/
     # coordination_gap.py, table in docs/env.md). b_0 / kappa = T as in the paper: the horizon is the energy budget.
     # Training options are provisional: one update measured 0.94x a `fast` update (benchmarks/update_time.py, same
-    # load), i.e. ~4.3 s on one unloaded thread, so 280 updates take ~20 min.
+    # load), i.e. ~4.3 s on one unloaded thread, so 200 updates (1.54M agent-steps) take ~15 min: three training seeds
+    # of three learners fit in about 1.5 h on the 2 cores (the multi-seed experiment of docs/results/coordination).
     horizon = 80
     config = SwarmConfig(
         grid_width=20,
@@ -185,7 +186,7 @@ def _coordination() -> Preset:
         start_region="corner",
         start_region_size=7.5,
     )
-    n_envs, n_steps, updates = 16, 160, 280
+    n_envs, n_steps, updates = 16, 160, 200
     return Preset(
         name="coordination",
         config=config,
@@ -194,7 +195,7 @@ def _coordination() -> Preset:
         algo_kwargs=_algo_kwargs(n_steps, 20, 1920, 64, 128, learning_rate=3e-4, mappo=True),
         baseline_timesteps=updates * n_steps * n_envs * config.n_agents,
         eval_episodes=50,
-        description="20x20 cells of 2.5 m, corner launch, T=80: message-free heuristics lose 28 points (~20 min, 1 thread).",
+        description="20x20 cells of 2.5 m, corner launch, T=80: message-free heuristics lose 28 points (~15 min, 1 thread).",
     )
 
 

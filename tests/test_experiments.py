@@ -111,9 +111,10 @@ def test_plan_crosses_variants_seeds_and_grid_points():
     [
         (["--variant", "mappo"], "invalid choice"),
         (["--seeds", "0"], "--seeds must be an int >= 1, got 0"),
-        (["--grid", "warp_speed=1,2"], "--grid: unknown SwarmConfig field"),
+        (["--grid", "warp_speed=1,2"], "--grid: unknown setting"),
         (["--grid", "p_fail=0.1,2.0"], "p_fail"),
-        (["--eval-set", "bad=warp_speed=3"], "unknown SwarmConfig field"),
+        (["--eval-set", "bad=warp_speed=3"], "unknown setting 'warp_speed'"),
+        (["--eval-set", "bad=learning_rate=0.1"], "--eval-set bad: unknown SwarmConfig field"),
         (["--eval-set", "bad=p_fail=0.7,conditions=proposed+telepathy"], "unknown condition 'telepathy'"),
         (["--address", "127.0.0.1:1"], "no Ray cluster answers there"),
         (["--cpus-per-trial", "0"], "--cpus-per-trial must be > 0"),

@@ -39,15 +39,25 @@ from sb3_latentswarm.experiments.trial import (
     training_env_seed,
     trial_preset,
 )
-from sb3_latentswarm.presets import get_preset
+from sb3_latentswarm.presets import get_preset, override_targets
 
 _CONFIG_FIELDS = tuple(f.name for f in dataclasses.fields(SwarmConfig) if f.name != "extra")
 
 
 def _check_fields(names: Sequence[str], what: str) -> None:
+    """Evaluation cells change the env only: their names must be SwarmConfig fields."""
     unknown = [name for name in names if name not in _CONFIG_FIELDS]
     if unknown:
         raise ValueError(f"{what}: unknown SwarmConfig field(s) {unknown}; fields: {', '.join(sorted(_CONFIG_FIELDS))}")
+
+
+def _check_settings(names: Sequence[str], what: str) -> None:
+    """Training settings (``--set``, ``--grid``) may be anything ``Preset.with_overrides`` routes."""
+    targets = override_targets()
+    unknown = [name for name in names if not any(name in settings for settings in targets.values())]
+    if unknown:
+        valid = "; ".join(f"{target}: {', '.join(settings)}" for target, settings in targets.items())
+        raise ValueError(f"{what}: unknown setting(s) {unknown}; valid settings are {valid}")
 
 
 def trial_id(variant: str, train_seed: int, grid_point: dict[str, Any]) -> str:
@@ -69,9 +79,10 @@ def plan_trials(spec: dict[str, Any], commit: str) -> list[dict[str, Any]]:
             "spec": spec,
             "commit": commit,
         }
+        # seed-major: an interrupted sweep has every variant at its first seeds, not all seeds of the first variant
         for point in points
-        for variant in spec["variants"]
         for seed in spec["seeds"]
+        for variant in spec["variants"]
     ]
 
 
@@ -97,8 +108,8 @@ def make_spec(
         raise ValueError(f"--variant: unknown variant(s) {unknown or variants}; choose from {list(VARIANTS)}")
     grid = {name: list(values) for name, values in (grid or {}).items()}
     overrides = dict(overrides or {})
-    _check_fields(list(grid), "--grid")
-    _check_fields(list(overrides), "--set")
+    _check_settings(list(grid), "--grid")
+    _check_settings(list(overrides), "--set")
     empty = [name for name, values in grid.items() if not values]
     if empty:
         raise ValueError(f"--grid: no values for {empty}")

@@ -12,6 +12,8 @@ Termination           all agents, when the energy ``b_t = b_0 - kappa t`` is dep
 Truncation            all agents, at ``t >= max_steps`` without termination
 Info keys             after each step: ``coverage``, ``collisions``, ``link_up_rate``, ``dropout``; ``swarm_summary``
                       at the last step (see :meth:`SwarmReconEnv.swarm_summary`); empty at reset
+Implementation        the one-swarm (B = 1) view of :class:`~sb3_latentswarm.envs.batched_core.SwarmBatch`, which holds
+                      the model below once for any number of swarms (``make_vec_env``'s batched backend is another view)
 ====================  =====================================================================================================
 
 Observation of agent ``i`` (a ``gymnasium.spaces.Dict``; the actor uses the first three keys only):

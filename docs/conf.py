@@ -1,7 +1,8 @@
 """Sphinx configuration of the sb3-latentswarm documentation (Sphinx + MyST, as Stable-Baselines3).
 
-Build (the CI check): ``sphinx-build -W --keep-going -b html docs docs/_build/html``. The build is offline: no
-intersphinx inventories are fetched, and the package is imported from the installed (editable) checkout.
+Build (the CI check): ``sphinx-build -W --keep-going -b html docs docs/_build/html``. The build and the built pages
+are offline: no intersphinx inventories are fetched, the package is imported from the installed (editable) checkout,
+and MathJax is copied into the build by ``sphinx-mathjax-offline`` instead of being loaded from a CDN.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ release = __version__
 extensions = [
     "sphinx.ext.autodoc",
     "sphinx.ext.mathjax",
+    "sphinx-mathjax-offline",  # a local copy of MathJax 3 in _static/mathjax: the pages render maths offline
     "myst_parser",
 ]
 
@@ -52,7 +54,8 @@ autodoc_class_signature = "separated"
 html_theme = "sphinx_rtd_theme"
 html_title = f"sb3-latentswarm {__version__}"
 html_theme_options = {"navigation_depth": 3}
-html_static_path: list[str] = []
+html_static_path = ["_static"]
+html_css_files = ["custom.css"]  # wide tables wrap instead of being cut off
 
 
 # ---------------------------------------------------------------------------------------------- results
@@ -208,7 +211,15 @@ def _always_reread(app, env, added, changed, removed) -> list[str]:
     return ["concepts", "results"]
 
 
+def _drop_inherited_init_docstring(app, what: str, name: str, obj, options, lines: list[str]) -> None:
+    """An ``__init__`` without a docstring of its own would show its base's (torch's ``Module.__init__``): the
+    class docstring documents the parameters, so the ``__init__`` entry keeps only its signature."""
+    if name.endswith(".__init__") and getattr(obj, "__doc__", None) is None:
+        lines.clear()
+
+
 def setup(app):
+    app.connect("autodoc-process-docstring", _drop_inherited_init_docstring)
     app.connect("source-read", _append_results)
     app.connect("source-read", _insert_presets_table)
     app.connect("env-get-outdated", _always_reread)

@@ -168,7 +168,7 @@ def _resolve_model(model: Any) -> Any:
         return model
     from sb3_latentswarm.latent_ppo import LatentSwarmPPO
 
-    if not os.path.isfile(model):
+    if not (os.path.isfile(model) or os.path.isfile(f"{os.fspath(model)}.zip")):  # SB3's save adds .zip
         raise ValueError(f"model: no file at {model}")
     return LatentSwarmPPO.load(model, device="cpu")
 

@@ -232,6 +232,17 @@ def test_continue_training_example_smoke(tmp_path):
     assert len(episodes) == 2 * 3 * 2 and (episodes["link_up_rate"] == 0).all() and (episodes["dropout_rate"] == 1).all()
     assert "zero vector" in (dropout / "run.md").read_text()
 
+    # training health: actions in the box, per-term gradient norms, mean vs sampled actions
+    health = tmp_path / "health"
+    result = run_script(
+        "examples/training_diagnostics.py", "--preset", "smoke", "--model", models[1], "--label", "smoke",
+        "--episodes", "2", "--rollout-envs", "2", "--output", str(health),
+    )
+    assert result.returncode == 0, result.stderr
+    figures = pd.read_csv(health / "diagnostics.csv", index_col=0)["smoke"]
+    assert 0.0 <= figures["actions in box (elements)"] <= 1.0 and figures["grad norm value"] > 0
+    assert {"collisions (mean)", "collisions (sampled)", "grad norm pred"} <= set(figures.index)
+
 
 def test_coordination_gap_benchmark_smoke():
     result = run_script("benchmarks/coordination_gap.py", "--preset", "smoke", "--horizons", "5", "8", "--episodes", "2")

@@ -138,3 +138,13 @@ def test_committed_models_are_plain_data_and_load_by_default():
     model = LatentSwarmPPO.load(ROOT / "docs" / "results" / "fast_1800_updates" / "model.zip", device="cpu")
     assert model.num_timesteps == 25_920_000 and model.tensorboard_log is None
     IndependentRecurrentPPO.load(ROOT / "docs" / "results" / "fast_1800_updates" / "independent_ppo.zip", device="cpu")
+
+
+def test_files_of_another_save_format_fail_clearly(saved, tmp_path):
+    assert LatentSwarmPPO.load(saved).save_format == 2
+    newer = rewrite_data(saved, tmp_path / "newer.zip", lambda d: d.update(save_format=99, saved_by_version="9.0.0"))
+    with pytest.raises(ValueError, match="saved by a newer sb3-latentswarm \\(9.0.0, save format 99\\)"):
+        LatentSwarmPPO.load(newer)
+    foreign = rewrite_data(saved, tmp_path / "foreign.zip", lambda d: d.pop("save_format"))
+    with pytest.raises(ValueError, match="not saved by LatentSwarmPPO"):
+        LatentSwarmPPO.load(foreign)

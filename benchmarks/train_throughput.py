@@ -137,7 +137,7 @@ def main() -> None:
     parser.add_argument("--chunk-length", type=int, default=32)
     parser.add_argument("--n-epochs", type=int, default=4)
     parser.add_argument("--iterations", type=int, default=3, help="rollout/update iterations timed")
-    parser.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    parser.add_argument("--threads", type=int, default=0, help="torch threads (0: the package default)")
     parser.add_argument("--backends", action="store_true", help="compare the vec env backends on a preset's update")
     parser.add_argument("--compile", action="store_true", help="compare the eager and the compiled latent step")
     parser.add_argument("--preset", default="fast", choices=sorted(PRESETS), help="preset of --backends and --compile")

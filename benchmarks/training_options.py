@@ -73,20 +73,29 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--jobs", type=int, default=2, help="option sets trained side by side (one thread each)")
     parser.add_argument("--output", default="runs/training_options")
+    parser.add_argument("--summarize-only", action="store_true", help="only tabulate the logs already in --output")
+    parser.add_argument("--sets", type=int, nargs="*", default=None, help="indices of OPTION_SETS to run (default: all)")
     args = parser.parse_args()
     folder = Path(args.output) / args.preset
-    jobs = [(name, args.preset, args.updates, args.seed, str(folder)) for name in OPTION_SETS]
-    with mp.get_context("spawn").Pool(args.jobs) as pool:
-        results = pool.map(train_one, jobs)
+    names = list(OPTION_SETS) if args.sets is None else [list(OPTION_SETS)[i] for i in args.sets]
+    jobs = [(name, args.preset, args.updates, args.seed, str(folder)) for name in names]
+    if args.summarize_only:
+        results = [{"name": name, "log": str(folder / f"option_set_{list(OPTION_SETS).index(name)}" / "progress.csv"),
+                    "cpu_s": float("nan")} for name in names]
+    else:
+        with mp.get_context("spawn").Pool(args.jobs) as pool:
+            results = pool.map(train_one, jobs)
     rows = []
     for result in results:
+        if not Path(result["log"]).exists():
+            continue
         log = pd.read_csv(result["log"])
         tail = log.tail(args.window)
-        row = {"option set": result["name"], "CPU s/update": result["cpu_s"] / args.updates}
+        row = {"option set": result["name"], "updates": len(log), "CPU s/update": result["cpu_s"] / args.updates}
         row.update({label: tail[key].mean() for key, label in KEYS.items() if key in tail})
         rows.append(row)
     table = pd.DataFrame(rows)
-    print(f"preset {args.preset}, {args.updates} updates, seed {args.seed}, mean of the last {args.window} updates")
+    print(f"preset {args.preset}, seed {args.seed}, mean of the last {args.window} updates of each run")
     print(to_markdown(table, decimals=3))
     table.to_csv(folder / "summary.csv", index=False)
 

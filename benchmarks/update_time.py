@@ -22,7 +22,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", default="paper", choices=sorted(PRESETS))
     parser.add_argument("--updates", type=int, default=1)
-    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (0 keeps torch's)")
+    parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: the package default)")
     parser.add_argument("--device", default="cpu")
     args = parser.parse_args()
     if args.threads:

@@ -1,13 +1,15 @@
 """Sphinx configuration of the sb3-latentswarm documentation (Sphinx + MyST, as Stable-Baselines3).
 
-Build (the CI check): ``sphinx-build -W --keep-going -b html docs docs/_build/html``. The build is offline: no
-intersphinx inventories are fetched, and the package is imported from the installed (editable) checkout.
+Build (the CI check): ``sphinx-build -W --keep-going -b html docs docs/_build/html``. The build and the built pages
+are offline: no intersphinx inventories are fetched, the package is imported from the installed (editable) checkout,
+and MathJax is copied into the build by ``sphinx-mathjax-offline`` instead of being loaded from a CDN.
 """
 
 from __future__ import annotations
 
 import inspect
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -15,7 +17,11 @@ import numpy as np
 
 sys.path.insert(0, os.path.abspath(".."))
 
+from sphinx.util import logging  # noqa: E402
+
 from sb3_latentswarm.version import __version__  # noqa: E402
+
+logger = logging.getLogger(__name__)
 
 project = "sb3-latentswarm"
 author = "sb3-latentswarm contributors"
@@ -26,6 +32,7 @@ release = __version__
 extensions = [
     "sphinx.ext.autodoc",
     "sphinx.ext.mathjax",
+    "sphinx-mathjax-offline",  # a local copy of MathJax 3 in _static/mathjax: the pages render maths offline
     "myst_parser",
 ]
 
@@ -47,7 +54,8 @@ autodoc_class_signature = "separated"
 html_theme = "sphinx_rtd_theme"
 html_title = f"sb3-latentswarm {__version__}"
 html_theme_options = {"navigation_depth": 3}
-html_static_path: list[str] = []
+html_static_path = ["_static"]
+html_css_files = ["custom.css"]  # wide tables wrap instead of being cut off
 
 
 # ---------------------------------------------------------------------------------------------- results
@@ -55,60 +63,75 @@ DOCS_DIR = Path(__file__).resolve().parent
 RESULTS_DIR = DOCS_DIR / "results"
 IMAGE_SUFFIXES = (".png", ".svg", ".gif", ".jpg")
 DATA_SUFFIXES = (".csv", ".json", ".txt", ".pdf")
-
-
-def _include(path: Path, heading_offset: int) -> list[str]:
-    rel = path.relative_to(DOCS_DIR).as_posix()
-    return [f"```{{include}} {rel}", f":heading-offset: {heading_offset}", ":relative-images:", "```", ""]
+# results.md places each results folder with a line `<!-- results-folder: NAME -->` under a heading of its own, so the
+# page's order and titles are chosen by its author, not by the folders' alphabetical order.
+RESULTS_MARKER = re.compile(r"^<!-- results-folder: ([\w.-]+) -->$", re.MULTILINE)
+# What each plot that the scripts write shows; the caption under it in results.md.
+PLOT_CAPTIONS = {
+    "coverage_vs_time": "Mean coverage (%) against the episode's step under each condition of Table I, p_f = 0.3.",
+    "coverage_vs_p_fail": "Final coverage (%) against the link failure probability p_f (proposed model), next to the "
+    "paper's Table I (right).",
+    "learning_curve": "Mean final coverage (%) against PPO updates under each condition, with mean and sampled "
+    "actions; bands are 95 % confidence intervals of the mean.",
+    "episode": "One evaluation episode (proposed condition): the UAVs, their links and the coverage map.",
+    "episode_trajectories": "The UAVs' trajectories in that episode (o: start, x: a UAV in dropout).",
+}
 
 
 def _results_folder(folder: Path) -> list[str]:
-    """MyST for one results folder (``docs/results/`` itself or one ``docs/results/<run>/``).
+    """MyST for one ``docs/results/<run>/`` folder, placed under a heading that ``results.md`` writes.
 
-    A folder with a ``run.md`` (what ``examples/reproduce_table1.py`` writes) is shown through that report, whose
-    ``#`` heading becomes a level-3 heading; otherwise each markdown file is included under a heading of its own.
-    Images are shown and data files linked for download; anything else (``model.zip``) is left out.
+    The folder's ``run.md`` (what the example scripts write, which holds its tables) is included without its own ``#``
+    title, its ``##`` headings one level below the section's (a folder without one: each markdown file); its plots
+    follow as figures with a caption each and its data files as download links. Anything else (``model.zip``) is left
+    out.
     """
     files = sorted(p for p in folder.iterdir() if p.is_file())
     markdown = [p for p in files if p.suffix.lower() == ".md" and p.name.lower() != "readme.md"]
     images = [p for p in files if p.suffix.lower() in IMAGE_SUFFIXES]
     data = [p for p in files if p.suffix.lower() in DATA_SUFFIXES]
-    if not (markdown or images or data):
-        return []
+    if folder / "run.md" in markdown:
+        markdown = [folder / "run.md"]
     rel = folder.relative_to(DOCS_DIR).as_posix()
-    report = folder / "run.md"
-    if report in markdown:
-        parts = _include(report, heading_offset=2)
-    else:
-        parts = [f"### `{rel}/`", ""]
-        for path in markdown:
-            parts += [f"#### {path.stem}", ""] + _include(path, heading_offset=3)
-    if images:
-        parts += ["#### Plots", ""]
-        for path in images:
-            parts += [f"```{{image}} {rel}/{path.name}", f":alt: {path.stem}", "```", ""]
+    parts: list[str] = []
+    for path in markdown:
+        lines = path.read_text(encoding="utf-8").splitlines()
+        has_title = bool(lines) and lines[0].startswith("# ")
+        parts += [f"```{{include}} {path.relative_to(DOCS_DIR).as_posix()}"]
+        parts += [":start-line: 1"] if has_title else []
+        parts += [":heading-offset: 2", ":relative-images:", "```", ""]
+    for path in images:
+        caption = PLOT_CAPTIONS.get(path.stem, path.stem.replace("_", " ").capitalize() + ".")
+        parts += [f"```{{figure}} {rel}/{path.name}", f":alt: {path.stem}", "", caption, "```", ""]
     if data:
-        parts += ["#### Data", ""]
-        parts += [f"- {{download}}`{path.name} <{rel}/{path.name}>`" for path in data] + [""]
+        parts += ["Data: " + ", ".join(f"{{download}}`{path.name} <{rel}/{path.name}>`" for path in data), ""]
     return parts
 
 
-def results_listing() -> str:
-    """MyST text appended to ``results.md``: the contents of ``docs/results/`` and of each of its sub-folders."""
-    if not RESULTS_DIR.is_dir():
-        return "\n*No results have been generated yet: `docs/results/` does not exist.*\n"
-    folders = [RESULTS_DIR] + sorted(p for p in RESULTS_DIR.iterdir() if p.is_dir() and not p.name.startswith((".", "_")))
-    parts: list[str] = []
-    for folder in folders:
-        parts += _results_folder(folder)
-    if not parts:
-        return "\n*No results have been generated yet: `docs/results/` holds no tables or plots.*\n"
-    return "\n" + "\n".join(parts)
+def _place_results(text: str) -> str:
+    """Replace each results marker of ``results.md`` by its folder; a folder no marker places is a build warning."""
+    placed = set(RESULTS_MARKER.findall(text))
+    present = sorted(p.name for p in RESULTS_DIR.iterdir() if p.is_dir() and not p.name.startswith((".", "_")))
+    for name in sorted(placed - set(present)):
+        logger.warning("results.md places docs/results/%s/, which does not exist", name, location="results")
+    for name in sorted(set(present) - placed):
+        logger.warning(
+            "docs/results/%s/ is not on the results page: add a heading and `<!-- results-folder: %s -->` to results.md",
+            name,
+            name,
+            location="results",
+        )
+
+    def section(match: re.Match) -> str:
+        folder = RESULTS_DIR / match.group(1)
+        return "\n".join(_results_folder(folder)) if folder.is_dir() else ""
+
+    return RESULTS_MARKER.sub(section, text)
 
 
 def _append_results(app, docname: str, source: list[str]) -> None:
     if docname == "results":
-        source[0] += results_listing()
+        source[0] = _place_results(source[0])
 
 
 # ---------------------------------------------------------------------------------------------- presets
@@ -160,6 +183,7 @@ def presets_table() -> str:
         "$T$ (`max_steps`); $b_0 / \\kappa$": horizon,
         "`num_obstacles`": lambda p: f"{p.config.num_obstacles}",
         "`v_max`, `vz_max`, `d_safe`": motion,
+        "`start_region`; `outage_model`": lambda p: f"{p.config.start_region}; {p.config.outage_model}",
         "swarms (`n_envs`)": lambda p: f"{p.n_envs}",
         "`n_steps`, `chunk_length`, `batch_size`, `n_epochs`": lambda p: algo(
             p, "n_steps", "chunk_length", "batch_size", "n_epochs"
@@ -187,7 +211,15 @@ def _always_reread(app, env, added, changed, removed) -> list[str]:
     return ["concepts", "results"]
 
 
+def _drop_inherited_init_docstring(app, what: str, name: str, obj, options, lines: list[str]) -> None:
+    """An ``__init__`` without a docstring of its own would show its base's (torch's ``Module.__init__``): the
+    class docstring documents the parameters, so the ``__init__`` entry keeps only its signature."""
+    if name.endswith(".__init__") and getattr(obj, "__doc__", None) is None:
+        lines.clear()
+
+
 def setup(app):
+    app.connect("autodoc-process-docstring", _drop_inherited_init_docstring)
     app.connect("source-read", _append_results)
     app.connect("source-read", _insert_presets_table)
     app.connect("env-get-outdated", _always_reread)

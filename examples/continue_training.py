@@ -27,9 +27,10 @@ def main() -> None:
     parser.add_argument("--output", required=True, help="where to save the continued model (.zip)")
     parser.add_argument("--total-timesteps", type=int, default=None, help="extra agent-steps (default: the preset's)")
     parser.add_argument("--env-seed", type=int, default=1, help="seed of the new env copies")
-    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: the package default, one)")
     args = parser.parse_args()
-    th.set_num_threads(args.threads)
+    if args.threads:
+        th.set_num_threads(args.threads)
 
     preset = get_preset(args.preset)
     output = Path(args.output)

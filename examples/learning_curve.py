@@ -97,14 +97,15 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=100, help="episodes per condition, checkpoint and way of acting")
     parser.add_argument("--seed", type=int, default=0, help="episode k uses env (and action-noise) seed seed + k")
     parser.add_argument("--output", required=True, help="result folder")
-    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: the package default, one)")
     args = parser.parse_args()
     missing = [path for path in args.models if not Path(path).exists()]
     if missing:
         parser.error(f"--models: no file at {', '.join(missing)}")
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
-    th.set_num_threads(args.threads)
+    if args.threads:
+        th.set_num_threads(args.threads)
     commit = git_commit()
     config = get_preset(args.preset).config
     output = Path(args.output)

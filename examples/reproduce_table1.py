@@ -2,7 +2,8 @@
 
 Trains ``LatentSwarmPPO`` on a preset (or loads ``--model``), evaluates the five conditions of Sec. IV and the p_f sweep
 over ``eval_episodes`` Monte Carlo runs each, adds the baselines (random, lawnmower, frontier explorer with explicit
-map sharing, independent RecurrentPPO without messages), and writes into ``--output``:
+map sharing, independent RecurrentPPO without messages), and writes into ``--output`` (default
+``runs/table1_PRESET/``; results published in the documentation are copied to ``docs/results/`` by hand):
 
 * ``conditions.csv`` / ``conditions.md`` (ours next to the paper's numbers), ``p_fail_sweep.csv`` / ``.md``,
   ``baselines.csv`` / ``.md``
@@ -20,7 +21,7 @@ import argparse
 import dataclasses
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -50,44 +51,43 @@ from sb3_latentswarm.evaluation import (
 from sb3_latentswarm.presets import PRESETS, get_preset
 
 
+def option(default, help: str):  # noqa: A002 - argparse's name
+    """A field of :class:`Args` with the help text that ``--help`` shows."""
+    return field(default=default, metadata={"help": help})
+
+
 @dataclass
 class Args:
-    preset: str = "fast"
-    """Experiment budget: paper, fast, demo or smoke."""
-    model: str | None = None
-    """Evaluate this saved model instead of training one."""
-    output: str | None = None
-    """Result folder (default docs/results/PRESET)."""
-    seed: int = 0
-    """Seed of training and of the evaluation episodes (episode k uses env seed seed + k)."""
-    episodes: int | None = None
-    """Monte Carlo runs per condition (default: the preset's, 10 for paper and fast)."""
-    no_independent_ppo: bool = False
-    """Skip training the independent RecurrentPPO baseline."""
-    baseline_timesteps: int | None = None
-    """Agent-steps of the independent RecurrentPPO baseline (default: the preset's)."""
-    independent_model: str | None = None
-    """Evaluate this saved independent RecurrentPPO (independent_ppo.zip of an earlier run) instead of training one."""
-    stochastic: bool = False
-    """Sample the learned policies' Gaussian actions (default: act with the mean, as SB3's evaluate_policy does)."""
-    model_notes: str | None = None
-    """How a --model was trained, written into run.md next to its path."""
-    device: str = "auto"
-    threads: int = 1
-    """torch CPU threads."""
+    preset: str = option("fast", "experiment budget: paper, fast, demo or smoke")
+    model: str | None = option(None, "evaluate this saved model instead of training one")
+    output: str | None = option(None, "result folder (default: runs/table1_PRESET)")
+    seed: int = option(0, "seed of training and of the evaluation episodes (episode k uses env seed seed + k)")
+    episodes: int | None = option(None, "Monte Carlo runs per condition (default: the preset's, 10 for paper and fast)")
+    no_independent_ppo: bool = option(False, "skip training the independent RecurrentPPO baseline")
+    baseline_timesteps: int | None = option(None, "agent-steps of the independent RecurrentPPO (default: the preset's)")
+    independent_model: str | None = option(
+        None, "evaluate this saved independent RecurrentPPO (independent_ppo.zip of an earlier run) instead of training one"
+    )
+    stochastic: bool = option(
+        False, "sample the learned policies' Gaussian actions (default: act with the mean, as SB3's evaluate_policy does)"
+    )
+    model_notes: str | None = option(None, "how a --model was trained, written into run.md next to its path")
+    device: str = option("auto", "torch device: auto, cpu or cuda")
+    threads: int = option(0, "torch CPU threads (0: the package default, one; see sb3_latentswarm.common.threads)")
 
 
 def parse_args() -> Args:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    for field in dataclasses.fields(Args):
-        flag = "--" + field.name.replace("_", "-")
-        if field.type == "bool":
-            parser.add_argument(flag, action="store_true")
-        elif field.name == "preset":
-            parser.add_argument(flag, default=field.default, choices=sorted(PRESETS))
+    for spec in dataclasses.fields(Args):
+        flag = "--" + spec.name.replace("_", "-")
+        text = spec.metadata["help"]
+        if spec.type == "bool":
+            parser.add_argument(flag, action="store_true", help=text)
+        elif spec.name == "preset":
+            parser.add_argument(flag, default=spec.default, choices=sorted(PRESETS), help=f"{text} (default: %(default)s)")
         else:
-            kind = int if field.type in ("int", "int | None") else str
-            parser.add_argument(flag, type=kind, default=field.default)
+            kind = int if spec.type in ("int", "int | None") else str
+            parser.add_argument(flag, type=kind, default=spec.default, help=text)
     return Args(**vars(parser.parse_args()))
 
 
@@ -139,7 +139,7 @@ def main() -> None:
     if args.episodes:
         preset = dataclasses.replace(preset, eval_episodes=args.episodes)
     config, episodes, seed = preset.config, preset.eval_episodes, args.seed
-    output = Path(args.output or f"docs/results/{preset.name}")
+    output = Path(args.output or f"runs/table1_{preset.name}")
     output.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
     deterministic = not args.stochastic  # for the learned policies; the planners have their own rules

@@ -34,11 +34,12 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=0, help="episode k uses env (and action-noise) seed seed + k")
     parser.add_argument("--output", required=True, help="result folder")
-    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: the package default, one)")
     args = parser.parse_args()
     if not Path(args.model).exists():
         parser.error(f"--model: no file at {args.model}")
-    th.set_num_threads(args.threads)
+    if args.threads:
+        th.set_num_threads(args.threads)
     commit = git_commit()  # the code that runs, before anything is written
     config = get_preset(args.preset).config
     model = LatentSwarmPPO.load(args.model, device="cpu")

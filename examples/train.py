@@ -28,9 +28,10 @@ def main() -> None:
     parser.add_argument("--output", default=None, help="run folder (default runs/PRESET)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--total-timesteps", type=int, default=None, help="override the preset's budget (agent-steps)")
-    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: the package default, one)")
     args = parser.parse_args()
-    th.set_num_threads(args.threads)
+    if args.threads:
+        th.set_num_threads(args.threads)
 
     preset = get_preset(args.preset)
     output = Path(args.output or f"runs/{preset.name}")

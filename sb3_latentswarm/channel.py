@@ -255,7 +255,7 @@ class A2AChannel:
         :param rng: numpy random generator.
         :param xi_state: the outage state of every directed link, int8 of shape (N, N) or (B, N, N) (1 up, 0 failed,
             :data:`XI_UNSET` at the start of an episode); advanced in place to this step's xi. Required by
-            ``outage_model="gilbert_elliott"``; optional for ``"bernoulli"``, whose draws do not depend on it.
+            ``outage_model="gilbert_elliott"``; ignored (left as it is) by ``"bernoulli"``, which has no memory.
         :return: boolean link matrix of shape (N, N) or (B, N, N); ``L[..., i, j]`` = receiver ``i`` got sender ``j``.
         """
         pos = _check_positions(positions)
@@ -310,15 +310,15 @@ class A2AChannel:
         return (lhs >= rhs) & self._xi(u[..., :n], xi_state) & self._offdiag_mask(n)
 
     def _xi(self, uniforms: np.ndarray, xi_state: np.ndarray | None) -> np.ndarray:
-        """xi of this step from its uniforms (..., N, N), advancing ``xi_state`` in place when given."""
-        if xi_state is None:
-            if self.stateful_outages:
-                raise ValueError(
-                    "outage_model='gilbert_elliott' keeps a Markov state per link: pass xi_state, an int8 array of "
-                    f"shape {uniforms.shape} filled with XI_UNSET at the start of the episode"
-                )
-            # xi ~ Bernoulli(1 - p_f): the link survives iff u >= p_f
+        """xi of this step from its uniforms (..., N, N); advances ``xi_state`` in place for the Markov chain."""
+        if not self.stateful_outages:
+            # xi ~ Bernoulli(1 - p_f): the link survives iff u >= p_f (nothing to remember)
             return uniforms >= self.p_fail
+        if xi_state is None:
+            raise ValueError(
+                "outage_model='gilbert_elliott' keeps a Markov state per link: pass xi_state, an int8 array of "
+                f"shape {uniforms.shape} filled with XI_UNSET at the start of the episode"
+            )
         if xi_state.shape != uniforms.shape or xi_state.dtype != np.int8:
             raise ValueError(
                 f"xi_state must be an int8 array of shape {uniforms.shape}, got {xi_state.dtype} {xi_state.shape}"

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -176,15 +177,23 @@ class SwarmConfig:
 
     # ------------------------------------------------------------------ validation
     def _validate(self) -> None:
-        def check_int(name: str, low: int) -> None:
+        def as_python(name: str, kind: type) -> Any:
+            # NumPy scalars (np.int64(3), np.float32(0.5)) are accepted as the Python numbers they equal
             value = getattr(self, name)
+            if not isinstance(value, bool) and isinstance(value, kind) and not isinstance(value, (int, float)):
+                value = int(value) if kind is numbers.Integral else float(value)
+                object.__setattr__(self, name, value)
+            return value
+
+        def check_int(name: str, low: int) -> None:
+            value = as_python(name, numbers.Integral)
             if isinstance(value, bool) or not isinstance(value, int):
                 raise TypeError(f"SwarmConfig.{name} must be an int, got {type(value).__name__} ({value!r})")
             if value < low:
                 raise ValueError(f"SwarmConfig.{name} must be >= {low}, got {value}")
 
         def check_float(name: str, low: float, high: float = math.inf, low_open: bool = False, high_open: bool = False):
-            value = getattr(self, name)
+            value = as_python(name, numbers.Real)
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise TypeError(f"SwarmConfig.{name} must be a number, got {type(value).__name__} ({value!r})")
             if not math.isfinite(value):

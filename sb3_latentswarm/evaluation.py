@@ -37,12 +37,14 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import math
+import os
 from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
 import pandas as pd
 import torch as th
+from tqdm.auto import tqdm
 
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.envs.swarm_recon import ACTOR_OBS_KEYS, SwarmReconEnv
@@ -158,6 +160,17 @@ def policy_switches(policy: LatentSwarmPolicy, condition: str) -> Iterator[Laten
     finally:
         policy.no_predictor, policy.no_memory = saved[0], saved[1]
         policy.set_training_mode(saved[2])
+
+
+def _resolve_model(model: Any) -> Any:
+    """A path is a saved :class:`~sb3_latentswarm.LatentSwarmPPO`, loaded safely (a pickled file is refused)."""
+    if not isinstance(model, (str, os.PathLike)):
+        return model
+    from sb3_latentswarm.latent_ppo import LatentSwarmPPO
+
+    if not (os.path.isfile(model) or os.path.isfile(f"{os.fspath(model)}.zip")):  # SB3's save adds .zip
+        raise ValueError(f"model: no file at {model}")
+    return LatentSwarmPPO.load(model, device="cpu")
 
 
 def _latent_policy(model: Any) -> LatentSwarmPolicy | None:
@@ -297,8 +310,12 @@ def _run_episodes(
     n_envs: int,
     stochastic_noise: bool,
     action_dim: int,
+    progress: tqdm | None = None,
 ) -> tuple[list[dict[str, Any]], np.ndarray]:
-    """Run ``n_episodes`` episodes in ``n_envs`` lockstep copies; return one row per episode and the coverage curves."""
+    """Run ``n_episodes`` episodes in ``n_envs`` lockstep copies; return one row per episode and the coverage curves.
+
+    ``progress``, if given, advances by one per finished episode.
+    """
     n = config.n_agents
     envs = [SwarmReconEnv(config) for _ in range(n_envs)]
     agents = envs[0].possible_agents
@@ -364,6 +381,8 @@ def _run_episodes(
                 curves[k, steps[copy] + 1 :] = curves[k, steps[copy]]
                 rows[k] = _episode_row(k, seed, infos[agents[0]]["swarm_summary"], logs[k], map_error is not None)
                 episode_of[copy] = -1
+                if progress is not None:
+                    progress.update()
                 if next_episode < n_episodes:
                     start(copy)
             else:
@@ -394,21 +413,24 @@ def _episode_row(k: int, seed: int, summary: dict[str, Any], log: _EpisodeLog, h
 def evaluate(
     model: Any,
     condition: str = "proposed",
-    p_fail: float | None = 0.3,
+    p_fail: float | None = None,
     n_episodes: int = 10,
     seed: int = 0,
     config: SwarmConfig | None = None,
     deterministic: bool = True,
     n_envs: int | None = None,
     return_curves: bool = False,
+    progress_bar: bool = False,
 ) -> pd.DataFrame | tuple[pd.DataFrame, np.ndarray]:
     """Evaluate ``model`` under one condition of Sec. IV; one row per episode (Monte Carlo run).
 
     :param model: a :class:`~sb3_latentswarm.LatentSwarmPPO`, a :class:`~sb3_latentswarm.LatentSwarmPolicy`, or any
         object with a recurrent ``predict(obs, state, episode_start, deterministic)`` over env-major slots (e.g. the
-        planners of :mod:`sb3_latentswarm.baselines`, which get no policy diagnostics: NaN)
+        planners of :mod:`sb3_latentswarm.baselines`, which get no policy diagnostics: NaN); or the path of a saved
+        LatentSwarmPPO, loaded with :meth:`~sb3_latentswarm.LatentSwarmPPO.load` (which refuses pickled files)
     :param condition: one of :data:`CONDITIONS` or :data:`EXTRA_CONDITIONS`
-    :param p_fail: p_f, the link failure probability of the channel (paper: 0.3); ``None`` keeps the config's
+    :param p_fail: p_f, the link failure probability of the channel; ``None`` (default) keeps the config's (the
+        paper's 0.3 in ``SwarmConfig()`` and the presets)
     :param n_episodes: number of episodes (paper: 10 Monte Carlo runs)
     :param seed: episode ``k`` uses env seed ``seed + k`` (and, if stochastic, action-noise seed ``seed + k``)
     :param config: the env configuration; default: the model's training config if it carries one (``model.env``'s
@@ -417,6 +439,7 @@ def evaluate(
     :param deterministic: act with the mean action (``False``: sample the Gaussian policy)
     :param n_envs: env copies stepped in lockstep (default: ``min(n_episodes, 64)``)
     :param return_curves: also return the coverage curves
+    :param progress_bar: show a progress bar of finished episodes (tqdm, on stderr)
     :return: the per-episode DataFrame (columns :data:`EPISODE_COLUMNS`: ``coverage`` is the final coverage in %,
         ``steps_to_90`` is NaN when 90 % was never reached, ``map_error`` is the mean over agent-steps of the per-cell
         squared error between D(mu_t^i) and M_hat_t, ``pred_error_dropout`` the mean over dropout agent-steps of the
@@ -426,6 +449,7 @@ def evaluate(
         value after the episode ends.
     """
     _check_condition(condition)
+    model = _resolve_model(model)
     if isinstance(n_episodes, bool) or not isinstance(n_episodes, (int, np.integer)) or n_episodes < 1:
         raise ValueError(f"n_episodes must be an int >= 1, got {n_episodes!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -443,6 +467,8 @@ def evaluate(
     _check_geometry(model, policy, config)
     n_envs = min(int(n_envs), int(n_episodes))
 
+    description = f"{condition}, p_f={config.p_fail:g}"
+    progress = tqdm(total=int(n_episodes), desc=description, unit="episode", leave=False) if progress_bar else None
     if policy is None:
         if not callable(getattr(model, "predict", None)):
             raise TypeError(
@@ -455,12 +481,16 @@ def evaluate(
                 f"{type(model).__name__} has none (use 'proposed', 'full_comm', 'full_comm_in_range' or 'no_comm')"
             )
         actor: _LatentActor | _PredictActor = _PredictActor(model, deterministic)
-        rows, curves = _run_episodes(actor, config, int(n_episodes), int(seed), n_envs, False, 0)
+        rows, curves = _run_episodes(actor, config, int(n_episodes), int(seed), n_envs, False, 0, progress)
     else:
         with policy_switches(policy, condition):
             actor = _LatentActor(policy, n_envs * config.n_agents, config.n_agents)
             action_dim = int(np.prod(policy.action_space.shape))
-            rows, curves = _run_episodes(actor, config, int(n_episodes), int(seed), n_envs, not deterministic, action_dim)
+            rows, curves = _run_episodes(
+                actor, config, int(n_episodes), int(seed), n_envs, not deterministic, action_dim, progress
+            )
+    if progress is not None:
+        progress.close()
 
     df = pd.DataFrame(rows)
     df.insert(2, "condition", condition)
@@ -472,7 +502,7 @@ def evaluate(
 def evaluate_conditions(
     model: Any,
     conditions: Sequence[str] = CONDITIONS,
-    p_fail: float | None = 0.3,
+    p_fail: float | None = None,
     n_episodes: int = 10,
     seed: int = 0,
     config: SwarmConfig | None = None,
@@ -481,11 +511,12 @@ def evaluate_conditions(
 ) -> pd.DataFrame | tuple[pd.DataFrame, dict[str, np.ndarray]]:
     """:func:`evaluate` under each condition (Table I, left), with the same seeds (same maps and starts).
 
-    :param kwargs: further :func:`evaluate` arguments (``deterministic``, ``n_envs``)
+    :param kwargs: further :func:`evaluate` arguments (``deterministic``, ``n_envs``, ``progress_bar``)
     :return: the concatenated per-episode DataFrame; with ``return_curves`` also ``{condition: curves}``
     """
     for condition in conditions:
         _check_condition(condition)
+    model = _resolve_model(model)
     frames, curves = [], {}
     for condition in conditions:
         df, curves[condition] = evaluate(model, condition, p_fail, n_episodes, seed, config, return_curves=True, **kwargs)
@@ -506,10 +537,11 @@ def evaluate_p_fail_sweep(
 ) -> pd.DataFrame | tuple[pd.DataFrame, dict[float, np.ndarray]]:
     """:func:`evaluate` at each link failure probability (Table I, right), with the same seeds.
 
-    :param kwargs: further :func:`evaluate` arguments (``deterministic``, ``n_envs``)
+    :param kwargs: further :func:`evaluate` arguments (``deterministic``, ``n_envs``, ``progress_bar``)
     :return: the concatenated per-episode DataFrame; with ``return_curves`` also ``{p_fail: curves}``
     """
     p_fails = [_check_p_fail(p) for p in p_fails]
+    model = _resolve_model(model)
     frames, curves = [], {}
     for p in p_fails:
         df, curves[p] = evaluate(model, condition, p, n_episodes, seed, config, return_curves=True, **kwargs)

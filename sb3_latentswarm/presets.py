@@ -1,5 +1,6 @@
 """Named training/evaluation budgets: ``paper`` (the paper's setting verbatim), ``fast`` (a documented reduction for a
-2-core CPU), ``demo`` (the README's main job, about two minutes) and ``smoke`` (seconds, for the test suite).
+2-core CPU), ``coordination`` (a scenario on which coordination is necessary, see ``docs/env.md``), ``demo`` (the
+README's main job, about two minutes) and ``smoke`` (seconds, for the test suite).
 
 Each preset is a :class:`Preset`: an env config, the ``LatentSwarmPPO`` keyword arguments, the training budget and the
 evaluation budget. ``docs/concepts.md`` explains each reduction.
@@ -42,12 +43,67 @@ class Preset:
         per_update = self.algo_kwargs["n_steps"] * self.n_envs * self.config.n_agents
         return max(1, -(-self.total_timesteps // per_update))
 
-    def with_overrides(self, **config_overrides: Any) -> Preset:
-        """A copy with env config fields replaced (validated)."""
-        return dataclasses.replace(self, config=self.config.replace(**config_overrides))
+    def with_overrides(self, **overrides: Any) -> Preset:
+        """A copy with settings replaced, each routed by its name (see :func:`override_targets`).
+
+        ``SwarmConfig`` fields are validated here by ``SwarmConfig`` itself; ``LatentSwarmPPO`` and
+        ``LatentSwarmPolicy`` arguments are validated by their constructors when the model is built.
+
+        :raise TypeError: for a name that is none of those, listing the valid names
+        """
+        targets = override_targets()
+        unknown = sorted(set(overrides) - {name for names in targets.values() for name in names})
+        if unknown:
+            valid = "; ".join(f"{target}: {', '.join(names)}" for target, names in targets.items())
+            raise TypeError(f"unknown setting(s) {unknown}; valid settings are {valid}")
+        pick = {target: {k: v for k, v in overrides.items() if k in names} for target, names in targets.items()}
+        algo_kwargs = {**self.algo_kwargs, **pick["LatentSwarmPPO"]}
+        if pick["LatentSwarmPolicy"]:
+            algo_kwargs["policy_kwargs"] = {**self.algo_kwargs.get("policy_kwargs", {}), **pick["LatentSwarmPolicy"]}
+        return dataclasses.replace(
+            self, config=self.config.replace(**pick["SwarmConfig"]), algo_kwargs=algo_kwargs, **pick["Preset"]
+        )
 
 
-def _algo_kwargs(n_steps: int, chunk_length: int, batch_size: int, latent_dim: int, hidden: int, **extra: Any) -> dict:
+PRESET_SETTINGS = ("n_envs", "eval_episodes")
+"""Fields of :class:`Preset` that ``--set`` may replace."""
+
+_NOT_OVERRIDABLE = ("self", "policy", "env", "device", "_init_setup_model", "policy_kwargs", "tensorboard_log", "verbose",
+                    "seed", "observation_space", "action_space", "lr_schedule", "optimizer_class")
+
+
+def override_targets() -> dict[str, tuple[str, ...]]:
+    """The names that :meth:`Preset.with_overrides` (and the CLI's ``--set``) accept, by where each one goes.
+
+    Taken from the code (the dataclass fields and the constructors' signatures), so new options need no change here.
+    ``seed``, ``verbose``, ``tensorboard_log`` and ``device`` have CLI flags of their own.
+    """
+    import inspect
+
+    from sb3_latentswarm.latent_ppo import LatentSwarmPolicy, LatentSwarmPPO
+
+    def arguments(function) -> tuple[str, ...]:
+        parameters = inspect.signature(function).parameters.values()
+        return tuple(p.name for p in parameters if p.kind is p.POSITIONAL_OR_KEYWORD and p.name not in _NOT_OVERRIDABLE)
+
+    return {
+        "SwarmConfig": tuple(f.name for f in dataclasses.fields(SwarmConfig) if f.name != "extra"),
+        "Preset": PRESET_SETTINGS,
+        "LatentSwarmPPO": arguments(LatentSwarmPPO.__init__),
+        "LatentSwarmPolicy": arguments(LatentSwarmPolicy.__init__),
+    }
+
+
+MAPPO_TRAINING: dict[str, Any] = dict(normalize_value=True, value_loss="huber", grad_clip="per_group")
+"""The MAPPO habits the CPU presets train with (docs/algorithm.md, "Training options"; measured in
+docs/results/training_options_fast/): the critic's gradient no longer scales down the actor's and the latent losses'."""
+BOUNDED_STD: dict[str, Any] = dict(log_std_bounds=(-5.0, 0.0), log_std_init=-0.5)
+"""Policy std at most 1 (half the action box), initially 0.61: most sampled actions fall inside the box."""
+
+
+def _algo_kwargs(
+    n_steps: int, chunk_length: int, batch_size: int, latent_dim: int, hidden: int, mappo: bool = False, **extra: Any
+) -> dict:
     kwargs: dict[str, Any] = dict(
         n_steps=n_steps,
         chunk_length=chunk_length,
@@ -58,8 +114,11 @@ def _algo_kwargs(n_steps: int, chunk_length: int, batch_size: int, latent_dim: i
             decoder_hidden=hidden,
             critic_hidden=hidden,
             actor_hidden=min(hidden, 64),
+            **(BOUNDED_STD if mappo else {}),
         ),
     )
+    if mappo:
+        kwargs.update(MAPPO_TRAINING)
     kwargs.update(extra)
     return kwargs
 
@@ -99,9 +158,44 @@ def _fast() -> Preset:
         config=config,
         n_envs=n_envs,
         total_timesteps=4_320_000,
-        algo_kwargs=_algo_kwargs(n_steps, 25, 3000, 64, 128, learning_rate=3e-4),
+        algo_kwargs=_algo_kwargs(n_steps, 25, 3000, 64, 128, learning_rate=3e-4, mappo=True),
         baseline_timesteps=600_000,
         description="25x25 cells of 2 m (the paper's 50 m arena), T=300, d=64, 16 envs, 300 updates (~30 min on 2 cores).",
+    )
+
+
+def _coordination() -> Preset:
+    # The paper's 50 m x 50 m arena in 20 x 20 cells of 2.5 m, 0.5 cells per step, every UAV launched from a common
+    # 7.5 m corner square and a horizon that binds: an ideal sweep of the 400 cells needs 400 / (3 * 5 * 0.5) = 53 of
+    # the T = 80 steps. Coordinated planners cover 97-100 %, the best message-free heuristic 72 % (benchmarks/
+    # coordination_gap.py, table in docs/env.md). b_0 / kappa = T as in the paper: the horizon is the energy budget.
+    # Training options are provisional: one update measured 0.94x a `fast` update (benchmarks/update_time.py, same
+    # load), i.e. ~4.3 s on one unloaded thread, so 200 updates (1.54M agent-steps) take ~15 min: three training seeds
+    # of three learners fit in about 1.5 h on the 2 cores (the multi-seed experiment of docs/results/coordination).
+    horizon = 80
+    config = SwarmConfig(
+        grid_width=20,
+        grid_height=20,
+        cell_size=2.5,
+        v_max=1.25,
+        vz_max=1.0,
+        d_safe=2.5,
+        num_obstacles=5,
+        max_steps=horizon,
+        initial_energy=horizon * 0.1,
+        start_region="corner",
+        start_region_size=7.5,
+    )
+    n_envs, n_steps, updates = 16, 160, 200
+    return Preset(
+        name="coordination",
+        config=config,
+        n_envs=n_envs,
+        total_timesteps=updates * n_steps * n_envs * config.n_agents,
+        algo_kwargs=_algo_kwargs(n_steps, 20, 1920, 64, 128, learning_rate=3e-4, mappo=True),
+        baseline_timesteps=updates * n_steps * n_envs * config.n_agents,
+        eval_episodes=50,
+        description="20x20 cells of 2.5 m, corner launch, T=80: message-free heuristics lose 28 points (~15 min, 1 thread).",
     )
 
 
@@ -126,14 +220,14 @@ def _smoke() -> Preset:
         config=config,
         n_envs=2,
         total_timesteps=2 * 20 * 2 * 3,
-        algo_kwargs=_algo_kwargs(20, 5, 30, 8, 16, n_epochs=1),
+        algo_kwargs=_algo_kwargs(20, 5, 30, 8, 16, n_epochs=1, mappo=True),
         baseline_timesteps=2 * 3 * 128,
         eval_episodes=2,
         description="Seconds: checks the whole pipeline runs; results mean nothing.",
     )
 
 
-PRESETS: dict[str, Preset] = {preset.name: preset for preset in (_paper(), _fast(), _demo(), _smoke())}
+PRESETS: dict[str, Preset] = {preset.name: preset for preset in (_paper(), _fast(), _coordination(), _demo(), _smoke())}
 
 
 def get_preset(name: str) -> Preset:

@@ -1,4 +1,4 @@
-"""Non-learned planners: the lawnmower sweep and the frontier explorer with explicit map sharing."""
+"""Non-learned planners: the coordinated lawnmower and frontier explorer, and the message-free heuristics."""
 
 import math
 
@@ -7,10 +7,15 @@ import pytest
 
 from sb3_latentswarm import SwarmConfig
 from sb3_latentswarm.baselines import (
+    COORDINATED_PLANNERS,
+    MESSAGE_FREE_PLANNERS,
     FrontierPlanner,
     IndependentRecurrentPPO,
     LawnmowerPlanner,
     RandomPlanner,
+    RandomStripPlanner,
+    SpiralPlanner,
+    SweepPlanner,
     train_independent_ppo,
 )
 from sb3_latentswarm.envs import SwarmReconEnv, make_vec_env
@@ -131,7 +136,8 @@ def test_state_resets_at_episode_start():
     env = SwarmReconEnv(config)
     obs, _ = env.reset(seed=0)
     stacked = {key: np.stack([obs[a][key] for a in env.possible_agents]) for key in ("local_obs", "proprio", "link_row")}
-    for planner in (FrontierPlanner(config), LawnmowerPlanner(config), RandomPlanner(config)):
+    all_planners = [cls(config) for cls in (*COORDINATED_PLANNERS.values(), *MESSAGE_FREE_PLANNERS.values(), RandomPlanner)]
+    for planner in all_planners:
         actions, state = planner.predict(stacked)
         assert actions.shape == (2, 4) and (np.abs(actions) <= 1.0).all()
         _, continued = planner.predict(stacked, state, np.zeros(2))
@@ -145,7 +151,8 @@ def test_state_resets_at_episode_start():
 
 def test_evaluate_runs_the_planners():
     config = SwarmConfig(n_agents=3, grid_width=12, grid_height=12, max_steps=30)
-    for planner in (LawnmowerPlanner(config), FrontierPlanner(config), RandomPlanner(config)):
+    all_planners = [cls(config) for cls in (*COORDINATED_PLANNERS.values(), *MESSAGE_FREE_PLANNERS.values(), RandomPlanner)]
+    for planner in all_planners:
         df = evaluate(planner, "proposed", n_episodes=3, seed=2)  # the planner's own config is the default
         assert list(df.columns) == list(EPISODE_COLUMNS) and len(df) == 3
         assert df["map_error"].isna().all() and df["pred_error_dropout"].isna().all()
@@ -182,6 +189,79 @@ def test_random_planner_is_uniform_and_reproducible():
     assert not df["coverage"].equals(other["coverage"])
     with pytest.raises(ValueError, match="seed"):
         RandomPlanner(config, seed=-1)
+
+
+# ---------------------------------------------------------------------------------------------- message-free heuristics
+def covered_by_route(points: np.ndarray, config: SwarmConfig) -> np.ndarray:
+    """(H, W) bool: cells within the footprint of some cell on the axis-aligned legs between consecutive waypoints."""
+    covered = np.zeros((config.grid_height, config.grid_width), dtype=bool)
+    r = config.sensor_range
+    for (x0, y0), (x1, y1) in zip(points, points[1:] if len(points) > 1 else points):
+        assert x0 == x1 or y0 == y1, "legs of these routes are axis-aligned"
+        xs, ys = sorted((x0, x1)), sorted((y0, y1))
+        covered[max(ys[0] - r, 0) : ys[1] + r + 1, max(xs[0] - r, 0) : xs[1] + r + 1] = True
+    return covered
+
+
+@pytest.mark.parametrize("planner_class", [SweepPlanner, SpiralPlanner])
+@pytest.mark.parametrize("width, height, sensor_range", [(20, 20, 2), (17, 13, 1), (9, 20, 1), (5, 5, 2), (11, 30, 3)])
+def test_whole_map_routes_cover_every_cell_and_ignore_the_agent(planner_class, width, height, sensor_range):
+    config = SwarmConfig(grid_width=width, grid_height=height, sensor_range=sensor_range, num_obstacles=0)
+    table, lengths = planner_class(config).routes(3)
+    assert (table == table[:1]).all() and (lengths == lengths[:1]).all()  # no agent index in the plan
+    for variant in range(table.shape[1]):
+        points = table[0, variant, : lengths[0, variant]]
+        assert covered_by_route(points, config).all(), (variant, points.tolist())
+
+
+@pytest.mark.parametrize("planner_class", [SweepPlanner, SpiralPlanner, RandomStripPlanner])
+def test_message_free_planner_alone_covers_the_map(planner_class):
+    config = SwarmConfig(n_agents=1, grid_width=15, grid_height=12, sensor_range=1, num_obstacles=0, **NOISELESS)
+    df = evaluate(planner_class(config), "no_comm", n_episodes=3, seed=0, config=config)
+    assert (df["coverage"] == 100.0).all(), df
+
+
+def test_random_strip_picks_strips_uniformly_and_independently_of_the_agent():
+    config = SwarmConfig(n_agents=3, grid_width=15, grid_height=15)
+    planner = RandomStripPlanner(config, seed=3)
+    rng = np.random.default_rng(0)
+    n_swarms = 600
+    obs = {
+        "local_obs": np.zeros((3 * n_swarms, config.footprint_width**2), dtype=np.int8),
+        "proprio": rng.random((3 * n_swarms, 8)).astype(np.float32) * 0.1,  # every UAV near the corner
+        "link_row": np.zeros((3 * n_swarms, 3), dtype=np.float32),
+    }
+    _, state = planner.predict(obs)
+    strip = (state.route // 4).reshape(n_swarms, 3)
+    # each of the 3 strips about 600 times per agent index (binomial std 11.5)
+    for agent in range(3):
+        assert (np.abs(np.bincount(strip[:, agent], minlength=3) - n_swarms / 3) < 5 * 11.5).all()
+    same = (strip[:, 0] == strip[:, 1]).mean()  # independent picks: P = 1/3 (std 0.019)
+    assert abs(same - 1 / 3) < 0.1
+    # the route of strip k starts with the lawnmower's route of strip k
+    lawn_table, lawn_lengths = LawnmowerPlanner(config).routes(3)
+    table, _ = planner.routes(3)
+    for k in range(3):
+        n = lawn_lengths[k, 0]
+        np.testing.assert_array_equal(table[0, 4 * k, :n], lawn_table[k, 0, :n])
+    again, _ = RandomStripPlanner(config, seed=3).predict(obs)
+    np.testing.assert_array_equal(again, planner.predict(obs)[0])
+    with pytest.raises(ValueError, match="seed"):
+        RandomStripPlanner(config, seed=-2)
+
+
+def test_coordination_preset_needs_coordination():
+    """On the coordination preset the best coordinated planner beats every message-free heuristic by >= 15 points."""
+    from sb3_latentswarm.presets import get_preset
+
+    config = get_preset("coordination").config
+    coverage = {}
+    for name, planner_class in {**COORDINATED_PLANNERS, **MESSAGE_FREE_PLANNERS}.items():
+        coverage[name] = evaluate(planner_class(config), "proposed", None, 20, 20_000, config)["coverage"].mean()
+    coverage["frontier_no_links"] = evaluate(FrontierPlanner(config), "no_comm", None, 20, 20_000, config)["coverage"].mean()
+    best_coordinated = max(coverage[name] for name in COORDINATED_PLANNERS)
+    best_free = max(value for name, value in coverage.items() if name not in COORDINATED_PLANNERS)
+    assert best_coordinated - best_free >= 15.0, coverage
 
 
 def test_independent_ppo_sees_only_its_own_observation_and_round_trips(tmp_path):

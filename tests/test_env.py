@@ -597,3 +597,18 @@ def test_actor_keys_agree_with_the_policy_side():
     from sb3_latentswarm.envs.swarm_recon import ACTOR_OBS_KEYS
 
     assert ACTOR_KEYS == ACTOR_OBS_KEYS
+
+
+def test_numpy_scalars_are_accepted_as_the_numbers_they_equal():
+    config = SwarmConfig(n_agents=np.int64(3), grid_width=np.int32(20), p_fail=np.float32(0.5))
+    assert config == SwarmConfig(n_agents=3, grid_width=20, p_fail=float(np.float32(0.5)))
+    assert type(config.n_agents) is int and type(config.p_fail) is float
+    with pytest.raises(TypeError, match="n_agents must be an int, got float64"):
+        SwarmConfig(n_agents=np.float64(2.5))
+
+
+def test_step_given_a_list_instead_of_a_dict_is_a_clear_type_error():
+    env = SwarmReconEnv(SwarmConfig(grid_width=10, grid_height=10))
+    env.reset(seed=0)
+    with pytest.raises(TypeError, match="actions must be a dict .*got list"):
+        env.step([np.zeros(4)] * 3)

@@ -276,3 +276,21 @@ def test_other_swarm_sizes(model, n_agents):
     df = evaluate(model, "no_comm", n_episodes=2, config=SMALL.replace(n_agents=n_agents))
     check_well_formed(df, 2)
     assert df["pred_error_dropout"].isna().all() if n_agents == 1 else np.isfinite(df["pred_error_dropout"]).all()
+
+
+def test_the_configs_p_fail_is_honoured_unless_p_fail_is_given():
+    from sb3_latentswarm.baselines import RandomPlanner
+
+    config = SMALL.replace(p_fail=0.9)
+    planner = RandomPlanner(config, seed=0)
+    assert (evaluate(planner, config=config, n_episodes=1)["p_fail"] == 0.9).all()
+    assert (evaluate_conditions(planner, ["proposed"], config=config, n_episodes=1)["p_fail"] == 0.9).all()
+    assert (evaluate(planner, p_fail=0.1, config=config, n_episodes=1)["p_fail"] == 0.1).all()
+
+
+def test_long_evaluations_can_show_progress(capsys):
+    from sb3_latentswarm.baselines import RandomPlanner
+
+    evaluate(RandomPlanner(SMALL, seed=0), config=SMALL, n_episodes=3, n_envs=2, progress_bar=True)
+    err = capsys.readouterr().err
+    assert "proposed, p_f=0.3" in err and "3/3" in err

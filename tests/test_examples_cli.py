@@ -1,5 +1,6 @@
 """The example scripts and the ``sb3-latentswarm`` command, run end to end with the smoke preset."""
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -17,13 +18,25 @@ from sb3_latentswarm.rendering import render_episode, run_episode
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run_script(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=300)
+def run_script(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, *args], cwd=cwd, capture_output=True, text=True, timeout=300)
+
+
+def test_reproduce_table1_help_describes_every_option():
+    result = run_script("examples/reproduce_table1.py", "--help")
+    assert result.returncode == 0, result.stderr
+    options = result.stdout.split("options:")[1]
+    for name in ("--preset", "--model", "--output", "--episodes", "--stochastic", "--independent-model", "--threads"):
+        assert name in options, name
+    assert "default: runs/table1_PRESET" in options and "Monte Carlo runs per condition" in options
 
 
 def test_reproduce_table1_smoke(tmp_path):
-    result = run_script("examples/reproduce_table1.py", "--preset", "smoke", "--output", str(tmp_path))
+    # run from another folder without --output: the results go under runs/, never into docs/results/
+    result = run_script(str(ROOT / "examples" / "reproduce_table1.py"), "--preset", "smoke", cwd=tmp_path)
     assert result.returncode == 0, result.stderr
+    assert [p.relative_to(tmp_path).as_posix() for p in tmp_path.iterdir()] == ["runs"]
+    tmp_path = tmp_path / "runs" / "table1_smoke"
     conditions = pd.read_csv(tmp_path / "conditions.csv")
     assert set(conditions["condition"]) == {"proposed", "full_comm", "no_comm", "no_predictor", "no_memory"}
     sweep = pd.read_csv(tmp_path / "p_fail_sweep.csv")
@@ -129,10 +142,22 @@ def test_render_episode_writes_mp4_with_odd_frame_sizes(tmp_path):
 def test_cli_overrides_are_typed_and_checked():
     overrides = parse_overrides(["p_fail=0.5", "n_agents=4", "link_mode=full"])
     assert overrides == {"p_fail": 0.5, "n_agents": 4, "link_mode": "full"}
-    with pytest.raises(ValueError, match="unknown SwarmConfig field"):
+    with pytest.raises(ValueError, match="unknown setting 'p_failure'; valid settings are SwarmConfig: .*p_fail"):
         parse_overrides(["p_failure=0.5"])
-    with pytest.raises(ValueError, match="FIELD=VALUE"):
+    with pytest.raises(ValueError, match="NAME=VALUE"):
         parse_overrides(["p_fail"])
+    with pytest.raises(ValueError, match="given twice"):
+        parse_overrides(["p_fail=0.5", "p_fail=0.6"])
+
+
+def test_every_set_counts_and_reaches_config_algorithm_and_policy(tmp_path):
+    args = ["--set", "p_fail=0.9", "--set", "n_agents=2", "learning_rate=1e-3", "--set", "latent_dim=4"]
+    assert main(["train", "--preset", "smoke", "--output", str(tmp_path), "--no-progress", *args]) == 0
+    model = LatentSwarmPPO.load(tmp_path / "model.zip")
+    assert (model.swarm_config.p_fail, model.swarm_config.n_agents) == (0.9, 2)
+    assert model.learning_rate == 1e-3 and model.policy.latent_dims[0] == 4
+    preset = get_preset("smoke").with_overrides(**parse_overrides(["n_envs=3", "n_steps=40", "chunk_length=10"]))
+    assert preset.n_envs == 3 and (preset.algo_kwargs["n_steps"], preset.algo_kwargs["chunk_length"]) == (40, 10)
 
 
 @pytest.mark.parametrize(
@@ -140,7 +165,12 @@ def test_cli_overrides_are_typed_and_checked():
     [
         (["train", "--preset", "smoke", "--set", "p_fail=1.5"], "p_fail must be in"),
         (["evaluate", "--model", "does/not/exist.zip"], "no file at"),
-        (["train", "--preset", "smoke", "--set", "grid_width=abc"], "cannot read"),
+        (["train", "--preset", "smoke", "--set", "grid_width=abc"], "grid_width must be an int, got str ('abc')"),
+        (["train", "--preset", "smoke", "--set", "n_agents=2.5"], "n_agents must be an int, got float (2.5)"),
+        (["train", "--preset", "smoke", "--set", "n_steps=2.5"], "n_steps must be an int"),
+        (["train", "--preset", "smoke", "--set", "pred_coef='5'"], "pred_coef must be a number"),
+        (["train", "--preset", "smoke", "--set", "lerning_rate=1"], "valid settings are SwarmConfig: "),
+        (["render", "--preset", "smoke", "--set", "learning_rate=1e-3"], "a training setting"),
         (["render", "--preset", "smoke", "--output", "episode"], "output must end in one of"),
         (["render", "--preset", "smoke", "--output", "episode.png"], "output must end in one of"),
         (["render", "--preset", "smoke", "--fps", "0"], "--fps: must be >= 1, got 0"),
@@ -201,3 +231,54 @@ def test_continue_training_example_smoke(tmp_path):
     episodes = pd.read_csv(dropout / "sustained_dropout.csv")
     assert len(episodes) == 2 * 3 * 2 and (episodes["link_up_rate"] == 0).all() and (episodes["dropout_rate"] == 1).all()
     assert "zero vector" in (dropout / "run.md").read_text()
+
+    # training health: actions in the box, per-term gradient norms, mean vs sampled actions
+    health = tmp_path / "health"
+    result = run_script(
+        "examples/training_diagnostics.py", "--preset", "smoke", "--model", models[1], "--label", "smoke",
+        "--episodes", "2", "--rollout-envs", "2", "--output", str(health),
+    )
+    assert result.returncode == 0, result.stderr
+    figures = pd.read_csv(health / "diagnostics.csv", index_col=0)["smoke"]
+    assert 0.0 <= figures["actions in box (elements)"] <= 1.0 and figures["grad norm value"] > 0
+    assert {"collisions (mean)", "collisions (sampled)", "grad norm pred"} <= set(figures.index)
+
+
+def test_coordination_gap_benchmark_smoke():
+    result = run_script("benchmarks/coordination_gap.py", "--preset", "smoke", "--horizons", "5", "8", "--episodes", "2")
+    assert result.returncode == 0, result.stderr
+    assert "| planner | T = 5 | T = 8 |" in result.stdout and "| **gap (points)** |" in result.stdout
+    assert "random_strip (message-free)" in result.stdout and "frontier (coordinated)" in result.stdout
+
+
+def test_cli_evaluations_record_their_config_and_never_mix(tmp_path, capsys):
+    assert main(["train", "--preset", "smoke", "--output", str(tmp_path), "--no-progress"]) == 0
+    model = str(tmp_path / "model.zip")
+    evaluate = ["evaluate", "--model", model, "--no-baselines", "--episodes", "1"]
+    assert main(evaluate) == 0
+    first = tmp_path / "evaluation"
+    assert json.loads((first / "evaluation.json").read_text())["config"]["p_fail"] == 0.3
+    tables = (first / "conditions.csv").read_text()
+    assert main([*evaluate, "--set", "p_fail=0.9"]) == 0  # another config: another folder, the first kept as it was
+    assert (first / "conditions.csv").read_text() == tables
+    (second,) = tmp_path.glob("evaluation-*")
+    assert json.loads((second / "evaluation.json").read_text())["config"]["p_fail"] == 0.9
+    assert set(pd.read_csv(second / "conditions.csv")["p_fail"]) == {0.9}
+    assert main(evaluate) == 0  # the same evaluation again: the same folder
+    assert sorted(p.name for p in tmp_path.glob("evaluation*")) == ["evaluation", second.name]
+    with pytest.raises(SystemExit):
+        main([*evaluate, "--set", "p_fail=0.5", "--output", str(first)])
+    assert "holds the tables of another evaluation" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("variables, expected", [({}, 1), ({"OMP_NUM_THREADS": "2"}, 2)])
+def test_importing_the_package_applies_the_thread_default_unless_the_environment_chose(variables, expected):
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+    code = "import torch; torch.set_num_threads(2); import sb3_latentswarm; print(torch.get_num_threads())"
+    result = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, env={**env, **variables}, capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 0, result.stderr
+    assert int(result.stdout) == expected

@@ -315,10 +315,42 @@ def test_clear_errors_for_unsuitable_envs():
 
     with pytest.raises(TypeError, match="Dict observation space"):
         LatentSwarmPPO("LatentSwarmPolicy", DummyVecEnv([lambda: gym.make("Pendulum-v1")]))
-    with pytest.raises(ValueError, match="chunk_length must divide n_steps"):
-        make_model(n_steps=21)
     with pytest.raises(ValueError, match="batch_size must hold at least one whole swarm"):
         make_model(batch_size=10)
+
+
+@pytest.mark.parametrize(
+    "kwargs, error, message",
+    [
+        (dict(n_steps=0), ValueError, "n_steps must be >= 1, got 0"),
+        (dict(n_steps=-5), ValueError, "n_steps must be >= 1, got -5"),
+        (dict(n_steps=2.5), TypeError, r"n_steps must be an int, got float \(2.5\)"),
+        (dict(pred_coef="5"), TypeError, r"pred_coef must be a number, got str \('5'\)"),
+        (dict(map_coef=float("nan")), ValueError, "map_coef must be a finite number in \\[0.0, inf\\], got nan"),
+        (dict(vf_coef=float("inf")), ValueError, "vf_coef must be a finite number"),
+        (dict(ent_coef=-0.1), ValueError, "ent_coef must be a finite number in"),
+        (dict(max_grad_norm=0.0), ValueError, "max_grad_norm must be a finite number in \\(0.0"),
+        (dict(gamma=1.5), ValueError, "gamma must be a finite number in \\[0.0, 1.0\\]"),
+    ],
+)
+def test_bad_hyperparameters_fail_up_front(kwargs, error, message):
+    with pytest.raises(error, match=message):
+        make_model(**kwargs)
+
+
+@pytest.mark.parametrize("n_steps, chunk_length", [(32, 16), (100, 25), (21, 21), (26, 13)])
+def test_rollouts_the_chunk_length_does_not_divide_train_on_fitting_chunks(n_steps, chunk_length):
+    config = SMALL.replace(max_steps=10)
+    env = make_vec_env(2, config=config, seed=0)
+    kwargs = dict(n_steps=n_steps, batch_size=6 * n_steps, n_epochs=1, policy_kwargs=TINY_POLICY, seed=0)
+    if n_steps % 25:
+        with pytest.warns(UserWarning, match=f"training sequences of {chunk_length} steps"):
+            model = LatentSwarmPPO("LatentSwarmPolicy", env, **kwargs)
+    else:
+        model = LatentSwarmPPO("LatentSwarmPolicy", env, **kwargs)
+    assert model.chunk_length == chunk_length
+    model.learn(total_timesteps=6 * n_steps)
+    assert model._n_updates == 1
 
 
 def test_logs_paper_keys(tmp_path):
@@ -357,34 +389,6 @@ def test_truncated_swarms_are_bootstrapped_with_the_critic():
     for slot in range(3, 6):
         infos[slot]["TimeLimit.truncated"] = False  # terminated, not truncated: no bootstrap
     assert np.all(model._truncation_values(infos, dones) == 0)
-
-
-def test_files_of_another_save_format_fail_clearly(tmp_path):
-    import json
-    import zipfile
-
-    model = make_model()
-    path = tmp_path / "model.zip"
-    model.save(path)
-    assert LatentSwarmPPO.load(path).saved_by_version == model.saved_by_version
-
-    def rewrite(data_change, target):
-        with zipfile.ZipFile(path) as source, zipfile.ZipFile(target, "w") as out:
-            for item in source.infolist():
-                content = source.read(item.filename)
-                if item.filename == "data":
-                    data = json.loads(content)
-                    data_change(data)
-                    content = json.dumps(data).encode()
-                out.writestr(item, content)
-        return target
-
-    newer = rewrite(lambda d: d.update(save_format=99, saved_by_version="9.0.0"), tmp_path / "newer.zip")
-    with pytest.raises(ValueError, match="saved by a newer sb3-latentswarm \\(9.0.0, save format 99\\)"):
-        LatentSwarmPPO.load(newer)
-    foreign = rewrite(lambda d: d.pop("save_format"), tmp_path / "foreign.zip")
-    with pytest.raises(ValueError, match="not saved by LatentSwarmPPO"):
-        LatentSwarmPPO.load(foreign)
 
 
 def test_compiled_latent_step_matches_eager_and_is_saved(tmp_path):

@@ -3,22 +3,32 @@ planners and independent recurrent PPO without messages."""
 
 from sb3_latentswarm.baselines.independent import IndependentRecurrentPPO, OwnObservationVecEnv, train_independent_ppo
 from sb3_latentswarm.baselines.planners import (
+    COORDINATED_PLANNERS,
+    MESSAGE_FREE_PLANNERS,
     FrontierPlanner,
     FrontierState,
     LawnmowerPlanner,
-    LawnmowerState,
     RandomPlanner,
     RandomState,
+    RandomStripPlanner,
+    SpiralPlanner,
+    SweepPlanner,
+    WaypointState,
 )
 
 __all__ = [
+    "COORDINATED_PLANNERS",
+    "MESSAGE_FREE_PLANNERS",
     "FrontierPlanner",
     "FrontierState",
     "IndependentRecurrentPPO",
     "LawnmowerPlanner",
-    "LawnmowerState",
     "OwnObservationVecEnv",
     "RandomPlanner",
     "RandomState",
+    "RandomStripPlanner",
+    "SpiralPlanner",
+    "SweepPlanner",
+    "WaypointState",
     "train_independent_ppo",
 ]

@@ -13,9 +13,11 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 from sb3_contrib import RecurrentPPO
+from stable_baselines3.common.type_aliases import MaybeCallback
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from sb3_latentswarm.common.observations import as_vec_observation
+from sb3_latentswarm.common.serialization import UnsafeModelFileError, load_plain, read_data, save_plain
 
 INDEPENDENT_KEYS = ("local_obs", "proprio")
 
@@ -60,14 +62,23 @@ class IndependentRecurrentPPO:
         return (dict(zip(agent_names, actions)) if agent_names is not None else actions), state
 
     def save(self, path: str | Path) -> None:
-        """Save the wrapped ``RecurrentPPO`` (SB3's zip format)."""
-        self.model.save(path)
+        """Save the wrapped ``RecurrentPPO`` in SB3's zip layout with plain data and no pickle (as LatentSwarmPPO)."""
+        save_plain(self.model, path)
 
     @classmethod
-    def load(cls, path: str | Path, device: str = "auto") -> IndependentRecurrentPPO:
-        """Load a ``RecurrentPPO`` saved by :meth:`save` (or trained on :class:`OwnObservationVecEnv` elsewhere)."""
+    def load(cls, path: str | Path, device: str = "auto", trust_pickle: bool = False) -> IndependentRecurrentPPO:
+        """Load a ``RecurrentPPO`` saved by :meth:`save` (or trained on :class:`OwnObservationVecEnv` elsewhere).
+
+        :param trust_pickle: also read SB3's own files, whose pickled attributes run code when loaded: only for
+            files you trust (see :mod:`sb3_latentswarm.common.serialization`)
+        """
         if not Path(path).exists():
             raise ValueError(f"IndependentRecurrentPPO.load: no file at {path}")
+        raw, pickled = read_data(path)
+        if not pickled:
+            return cls(load_plain(RecurrentPPO, path, raw, device=device))
+        if not trust_pickle:
+            raise UnsafeModelFileError(path, pickled)
         return cls(RecurrentPPO.load(path, device=device))
 
 
@@ -78,6 +89,7 @@ def train_independent_ppo(
     hidden: int = 64,
     n_steps: int = 128,
     batch_size: int = 512,
+    callback: MaybeCallback = None,
     **kwargs: Any,
 ) -> IndependentRecurrentPPO:
     """Train sb3-contrib ``RecurrentPPO("MultiInputLstmPolicy")`` on each UAV's own observation.
@@ -85,6 +97,7 @@ def train_independent_ppo(
     :param vec_env: a swarm VecEnv from :func:`sb3_latentswarm.make_vec_env`
     :param total_timesteps: budget in agent-steps
     :param hidden: LSTM hidden size and MLP width
+    :param callback: SB3 callback(s) of ``learn`` (e.g. progress reports)
     """
     model = RecurrentPPO(
         "MultiInputLstmPolicy",
@@ -96,5 +109,5 @@ def train_independent_ppo(
         policy_kwargs=dict(lstm_hidden_size=hidden, net_arch=[hidden]),
         **kwargs,
     )
-    model.learn(total_timesteps=total_timesteps)
+    model.learn(total_timesteps=total_timesteps, callback=callback)
     return IndependentRecurrentPPO(model)

@@ -1,10 +1,21 @@
 """Non-learned planners for :class:`~sb3_latentswarm.envs.SwarmReconEnv`, with the recurrent ``predict`` of a model.
 
 * :class:`RandomPlanner`: uniformly random horizontal velocity commands, the floor every planner must beat.
-* :class:`LawnmowerPlanner`: a boustrophedon sweep, one vertical strip of the arena per UAV; no communication.
+
+Coordinated planners (the UAVs split the work):
+
+* :class:`LawnmowerPlanner`: a boustrophedon sweep, one vertical strip of the arena per UAV, assigned by agent index
+  (coordination agreed in advance; no messages).
 * :class:`FrontierPlanner`: greedy frontier exploration on per-UAV maps shared explicitly over the live links,
   the explicit-communication mapping approach the paper names as future work (Sec. V, refs. [mahdoui2020,
   westheider2023]): when the link j -> i is up at step t, UAV i merges UAV j's map, position and target of step t-1.
+
+Message-free heuristics (every UAV plans from its own position only, without messages or agent-based partition; they
+measure how much a scenario rewards coordination):
+
+* :class:`SweepPlanner`: a boustrophedon sweep of the whole arena.
+* :class:`SpiralPlanner`: an inward rectangular spiral of the whole arena.
+* :class:`RandomStripPlanner`: the lawnmower's strips, the first one picked at random, then the others in turn.
 
 All act only on the decentralized observation keys (``local_obs``, ``proprio``, ``link_row``), are vectorized over
 all slots of all swarms (slots env-major, agent-minor; N is read from the length of ``link_row``, so one planner
@@ -27,7 +38,19 @@ import numpy as np
 from sb3_latentswarm.common.observations import ACTOR_KEYS, as_vec_observation
 from sb3_latentswarm.config import SwarmConfig
 
-__all__ = ["FrontierPlanner", "FrontierState", "LawnmowerPlanner", "LawnmowerState", "RandomPlanner", "RandomState"]
+__all__ = [
+    "COORDINATED_PLANNERS",
+    "MESSAGE_FREE_PLANNERS",
+    "FrontierPlanner",
+    "FrontierState",
+    "LawnmowerPlanner",
+    "RandomPlanner",
+    "RandomState",
+    "RandomStripPlanner",
+    "SpiralPlanner",
+    "SweepPlanner",
+    "WaypointState",
+]
 
 
 
@@ -133,6 +156,21 @@ def _splitmix64(x: np.ndarray) -> np.ndarray:
     return x ^ (x >> np.uint64(31))
 
 
+def _proprio_hash(seed: int, agent: np.ndarray, proprio: np.ndarray, *columns: np.ndarray) -> np.ndarray:
+    """A uint64 hash per slot of (``seed``, agent index, further integer ``columns``, the float32 bits of ``proprio``)."""
+    words = np.ascontiguousarray(proprio, dtype=np.float32).view(np.uint32).astype(np.uint64)  # (n, 8)
+    key = np.full(len(proprio), seed, dtype=np.uint64)
+    for column in (agent, *columns, *words.T):
+        key = _splitmix64(key ^ np.asarray(column).astype(np.uint64))
+    return key
+
+
+def _check_seed(seed: int) -> int:
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be an int >= 0, got {seed!r}")
+    return int(seed)
+
+
 class RandomState(NamedTuple):
     """Per-slot step counter (mixed into the hash, so a repeated observation still gets a fresh action)."""
 
@@ -153,9 +191,7 @@ class RandomPlanner(_Planner):
 
     def __init__(self, config: SwarmConfig | None = None, seed: int = 0) -> None:
         super().__init__(config)
-        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-            raise ValueError(f"seed must be an int >= 0, got {seed!r}")
-        self.seed = int(seed)
+        self.seed = _check_seed(seed)
 
     def initial_state(self, n_slots: int, n_agents: int = 1) -> RandomState:
         return RandomState(np.zeros(n_slots, dtype=np.int64))
@@ -163,10 +199,7 @@ class RandomPlanner(_Planner):
     def _act(self, local_obs, proprio, link_row, state: RandomState, starts: np.ndarray):
         n_slots, n_agents = link_row.shape
         step = np.where(starts, 0, state.step)
-        words = np.ascontiguousarray(proprio, dtype=np.float32).view(np.uint32).astype(np.uint64)  # (n, 8)
-        key = np.full(n_slots, self.seed, dtype=np.uint64)
-        for column in (np.arange(n_slots) % n_agents, step, *words.T):
-            key = _splitmix64(key ^ np.asarray(column).astype(np.uint64))
+        key = _proprio_hash(self.seed, np.arange(n_slots) % n_agents, proprio, step)
         draws = np.stack([_splitmix64(key ^ np.uint64(axis)) for axis in (1, 2)], axis=-1)  # (n, 2)
         uniform = (draws >> np.uint64(11)).astype(np.float64) * 2.0**-53  # [0, 1), 53 random bits
         xy, _ = self._positions(proprio)
@@ -175,80 +208,91 @@ class RandomPlanner(_Planner):
         return actions, RandomState(step + 1)
 
 
-# ---------------------------------------------------------------------------------------------- lawnmower
-class LawnmowerState(NamedTuple):
-    """Per-slot progress along the sweep."""
+# ---------------------------------------------------------------------------------------------- waypoint routes
+class WaypointState(NamedTuple):
+    """Per-slot progress along a route of waypoints."""
 
     route: np.ndarray
-    """(n_slots,) int: which of the four sweep orders of its strip the UAV follows; -1 before its first step."""
+    """(n_slots,) int: which of the agent's route variants the UAV follows; -1 before its first step."""
     waypoint: np.ndarray
     """(n_slots,) int: index of the waypoint the UAV heads to."""
 
 
-class LawnmowerPlanner(_Planner):
-    """Boustrophedon coverage: UAV i sweeps the i-th of N vertical strips in lanes spaced by the footprint width.
+def _strip_orders(x0: int, x1: int, config: SwarmConfig) -> list[list[tuple[int, int]]]:
+    """The four boustrophedon orders (left or right lane first, bottom or top first) of the columns [x0, x1).
 
-    Strip i spans cells ``[floor(i W / N), floor((i + 1) W / N))``; its ``L = ceil(width / (2r + 1))`` lanes are
-    spread evenly from ``x0 + r`` to ``x1 - 1 - r`` (so they cover the strip, at most 2r + 1 cells apart), and each
-    lane runs from cell row ``r`` to row ``H - 1 - r`` (so the footprint covers rows 0 to H - 1). At its first step
-    a UAV picks, of the four orders (left or right lane first, starting at the bottom or the top), the one whose
-    first waypoint is nearest; a waypoint is reached when the UAV is in its cell. The UAV moves at most 2r + 1 cells
-    per step along each axis, so a lane leaves no gap; after the last waypoint it hovers.
+    The ``ceil((x1 - x0) / (2r + 1))`` vertical lanes are spread evenly from ``x0 + r`` to ``x1 - 1 - r`` (so they cover
+    the strip, at most 2r + 1 cells apart); each runs from row ``r`` to row ``H - 1 - r`` (the footprint covers rows
+    0 to H - 1). Waypoints are cells (ix, iy).
+    """
+    r, fw, width, height = config.sensor_range, config.footprint_width, config.grid_width, config.grid_height
+    y_low, y_high = r, height - 1 - r  # the grid is at least one footprint tall (SwarmConfig checks it)
+    strip = x1 - x0
+    n_lanes = -(-strip // fw)
+    if n_lanes == 1:
+        lanes = np.array([(x0 + x1 - 1) // 2])
+    else:  # integer steps of floor((strip - fw) / (L - 1)) or one more: at most fw apart
+        lanes = x0 + r + (np.arange(n_lanes) * (strip - fw)) // (n_lanes - 1)
+    lanes = np.clip(lanes, r, width - 1 - r) if width > 2 * r else lanes
+    orders = []
+    for reverse in (False, True):
+        for top_first in (False, True):
+            points = []
+            for k, x in enumerate(lanes[::-1] if reverse else lanes):
+                up = (k % 2 == 0) != top_first
+                points += [(int(x), y_low), (int(x), y_high)] if up else [(int(x), y_high), (int(x), y_low)]
+            orders.append(points)
+    return orders
 
-    :param config: the env configuration (grid, sensor range, speeds)
+
+def _route_table(routes: list[list[list[tuple[int, int]]]]) -> tuple[np.ndarray, np.ndarray]:
+    """Pack ``routes[agent][variant]`` (lists of cells) into a table (N, V, L_max, 2) padded with the last waypoint,
+    and the lengths (N, V). Consecutive duplicate waypoints are merged (they would need two arrivals in one step)."""
+    routes = [[[p for j, p in enumerate(order) if j == 0 or p != order[j - 1]] for order in orders] for orders in routes]
+    max_len = max(len(order) for orders in routes for order in orders)
+    n_variants = len(routes[0])
+    table = np.zeros((len(routes), n_variants, max_len, 2), dtype=np.intp)
+    lengths = np.zeros((len(routes), n_variants), dtype=np.intp)
+    for i, orders in enumerate(routes):
+        for v, order in enumerate(orders):
+            lengths[i, v] = len(order)
+            table[i, v, : len(order)] = order
+            table[i, v, len(order) :] = order[-1]
+    return table, lengths
+
+
+class _WaypointPlanner(_Planner):
+    """Follows a fixed route of waypoint cells; subclasses define the routes (:meth:`_build_routes`).
+
+    Each agent has V route variants. At its first step a UAV picks one (by default the variant whose first waypoint
+    is nearest, in Chebyshev cells since diagonal moves are free); a waypoint is reached when the UAV is in its cell.
+    The UAV moves at most 2r + 1 cells per step along each axis, so a lane leaves no gap; after the last waypoint it
+    hovers.
     """
 
     def __init__(self, config: SwarmConfig | None = None) -> None:
         super().__init__(config)
         self._routes: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
-    def initial_state(self, n_slots: int, n_agents: int = 1) -> LawnmowerState:
-        return LawnmowerState(np.full(n_slots, -1, dtype=np.int64), np.zeros(n_slots, dtype=np.int64))
+    def initial_state(self, n_slots: int, n_agents: int = 1) -> WaypointState:
+        return WaypointState(np.full(n_slots, -1, dtype=np.int64), np.zeros(n_slots, dtype=np.int64))
 
     def routes(self, n_agents: int) -> tuple[np.ndarray, np.ndarray]:
-        """Waypoint cells of every agent and order, (N, 4, L_max, 2) as (ix, iy), padded with the last one; lengths (N, 4)."""
+        """Waypoint cells of every agent and variant, (N, V, L_max, 2) as (ix, iy), padded with the last one;
+        lengths (N, V)."""
         if n_agents not in self._routes:
             self._routes[n_agents] = self._build_routes(n_agents)
         return self._routes[n_agents]
 
+    @abc.abstractmethod
     def _build_routes(self, n_agents: int) -> tuple[np.ndarray, np.ndarray]:
-        cfg = self.config
-        r, fw, width, height = cfg.sensor_range, cfg.footprint_width, cfg.grid_width, cfg.grid_height
-        y_low, y_high = r, height - 1 - r  # the grid is at least one footprint tall (SwarmConfig checks it)
-        routes = []
-        for i in range(n_agents):
-            x0, x1 = (i * width) // n_agents, ((i + 1) * width) // n_agents
-            strip = x1 - x0
-            if strip == 0:  # more UAVs than columns: this UAV sweeps the column it shares with its left neighbour
-                x0, x1, strip = max(x0 - 1, 0), max(x0, 1), 1
-            n_lanes = -(-strip // fw)
-            if n_lanes == 1:
-                lanes = np.array([(x0 + x1 - 1) // 2])
-            else:  # integer steps of floor((strip - fw) / (L - 1)) or one more: at most fw apart
-                lanes = x0 + r + (np.arange(n_lanes) * (strip - fw)) // (n_lanes - 1)
-            lanes = np.clip(lanes, r, width - 1 - r) if width > 2 * r else lanes
-            orders = []
-            for reverse in (False, True):
-                for top_first in (False, True):
-                    points = []
-                    for k, x in enumerate(lanes[::-1] if reverse else lanes):
-                        up = (k % 2 == 0) != top_first
-                        points += [(x, y_low), (x, y_high)] if up else [(x, y_high), (x, y_low)]
-                    # consecutive duplicates (lanes of one cell when H = 2r + 1) would need two arrivals in one step
-                    dedup = [p for j, p in enumerate(points) if j == 0 or p != points[j - 1]]
-                    orders.append(dedup)
-            routes.append(orders)
-        max_len = max(len(order) for orders in routes for order in orders)
-        table = np.zeros((n_agents, 4, max_len, 2), dtype=np.intp)
-        lengths = np.zeros((n_agents, 4), dtype=np.intp)
-        for i, orders in enumerate(routes):
-            for v, order in enumerate(orders):
-                lengths[i, v] = len(order)
-                table[i, v, : len(order)] = order
-                table[i, v, len(order) :] = order[-1]
-        return table, lengths
+        """The route table of swarms of ``n_agents`` (see :meth:`routes`)."""
 
-    def _act(self, local_obs, proprio, link_row, state: LawnmowerState, starts: np.ndarray):
+    def _choose_routes(self, first: np.ndarray, cells: np.ndarray, agent: np.ndarray, proprio: np.ndarray) -> np.ndarray:
+        """Route variant of each starting UAV: the nearest first waypoint ``first`` (k, V, 2) from ``cells`` (k, 2)."""
+        return np.abs(first - cells[:, None, :]).max(-1).argmin(-1)
+
+    def _act(self, local_obs, proprio, link_row, state: WaypointState, starts: np.ndarray):
         n_slots, n_agents = link_row.shape
         table, lengths = self.routes(n_agents)
         agent = np.arange(n_slots) % n_agents
@@ -256,10 +300,8 @@ class LawnmowerPlanner(_Planner):
         route, waypoint = state.route.copy(), state.waypoint.copy()
 
         choose = starts | (route < 0)
-        if choose.any():  # the order whose first waypoint is nearest (Chebyshev, in cells: diagonal moves are free)
-            first = table[agent[choose], :, 0]  # (k, 4, 2)
-            distance = np.abs(first - cells[choose, None, :]).max(-1)
-            route[choose] = distance.argmin(-1)
+        if choose.any():
+            route[choose] = self._choose_routes(table[agent[choose], :, 0], cells[choose], agent[choose], proprio[choose])
             waypoint[choose] = 0
         target = table[agent, route, waypoint]  # (n, 2) cells
         arrived = (target == cells).all(-1) & (waypoint < lengths[agent, route] - 1)
@@ -267,7 +309,146 @@ class LawnmowerPlanner(_Planner):
         target = table[agent, route, waypoint]
         target_xy = np.stack([self._centres_x[target[:, 0]], self._centres_y[target[:, 1]]], axis=-1)
         actions = self._command(proprio, xy, target_xy, self.config.footprint_width * self.config.cell_size)
-        return actions, LawnmowerState(route, waypoint)
+        return actions, WaypointState(route, waypoint)
+
+
+# ---------------------------------------------------------------------------------------------- coordinated by id
+class LawnmowerPlanner(_WaypointPlanner):
+    """Boustrophedon coverage: UAV i sweeps the i-th of N vertical strips in lanes spaced by the footprint width.
+
+    Strip i spans cells ``[floor(i W / N), floor((i + 1) W / N))``. No messages, but the partition is coordination
+    agreed in advance through the agent index. Its four route variants are the four sweep orders of the strip (left
+    or right lane first, starting at the bottom or the top); see :class:`_WaypointPlanner` for how they are followed.
+
+    :param config: the env configuration (grid, sensor range, speeds)
+    """
+
+    def _build_routes(self, n_agents: int) -> tuple[np.ndarray, np.ndarray]:
+        width = self.config.grid_width
+        routes = []
+        for i in range(n_agents):
+            x0, x1 = (i * width) // n_agents, ((i + 1) * width) // n_agents
+            if x1 == x0:  # more UAVs than columns: this UAV sweeps the column it shares with its left neighbour
+                x0, x1 = max(x0 - 1, 0), max(x0, 1)
+            routes.append(_strip_orders(x0, x1, self.config))
+        return _route_table(routes)
+
+
+# ---------------------------------------------------------------------------------------------- message-free
+class SweepPlanner(_WaypointPlanner):
+    """Message-free whole-map sweep: every UAV sweeps the whole arena in vertical boustrophedon lanes, from the sweep
+    order whose first lane end is nearest, ignoring the other UAVs (no messages, no agent index).
+
+    UAVs that start close together sweep the same lanes: the coverage of a swarm is then that of one UAV.
+
+    :param config: the env configuration
+    """
+
+    def _build_routes(self, n_agents: int) -> tuple[np.ndarray, np.ndarray]:
+        return _route_table([_strip_orders(0, self.config.grid_width, self.config)] * n_agents)
+
+
+def _inward_spiral(width: int, height: int, config: SwarmConfig) -> list[tuple[int, int]]:
+    """Corner cells of an inward rectangular spiral on a ``width x height`` grid, from the corner (0, 0) east first.
+
+    The uncovered band shrinks by one footprint (2r + 1 cells) per leg: each leg runs along the band's edge with the
+    footprint just inside it (centred on the band's middle once the band is a footprint or less wide), so the
+    footprints tile the grid; the spiral ends when the band is empty.
+    """
+    r, fw = config.sensor_range, config.footprint_width
+
+    def lane_low(low: int, high: int) -> int:  # lane centre along the low edge of the band [low, high]
+        return low + r if high - low + 1 > fw else (low + high) // 2
+
+    def lane_high(low: int, high: int) -> int:
+        return high - r if high - low + 1 > fw else (low + high) // 2
+
+    x_low, x_high, y_low, y_high = 0, width - 1, 0, height - 1  # the uncovered band, in cells
+    x, y = lane_low(x_low, x_high), lane_low(y_low, y_high)
+    points = [(x, y)]
+    while True:
+        x = lane_high(x_low, x_high)  # east along the bottom
+        points.append((x, y))
+        y_low = y + r + 1
+        if y_low > y_high:
+            break
+        y = lane_high(y_low, y_high)  # north along the right
+        points.append((x, y))
+        x_high = x - r - 1
+        if x_low > x_high:
+            break
+        x = lane_low(x_low, x_high)  # west along the top
+        points.append((x, y))
+        y_high = y - r - 1
+        if y_low > y_high:
+            break
+        y = lane_low(y_low, y_high)  # south along the left
+        points.append((x, y))
+        x_low = x + r + 1
+        if x_low > x_high:
+            break
+    return points
+
+
+class SpiralPlanner(_WaypointPlanner):
+    """Message-free inward spiral: every UAV flies a rectangular spiral of the whole arena, lanes one footprint apart,
+    from the nearest corner, ignoring the other UAVs (no messages, no agent index).
+
+    The eight route variants are the four corners times the two turning senses.
+
+    :param config: the env configuration
+    """
+
+    def _build_routes(self, n_agents: int) -> tuple[np.ndarray, np.ndarray]:
+        cfg = self.config
+        width, height = cfg.grid_width, cfg.grid_height
+        east_first = _inward_spiral(width, height, cfg)
+        north_first = [(x, y) for y, x in _inward_spiral(height, width, cfg)]  # the other turning sense
+        orders = []
+        for spiral in (east_first, north_first):
+            for mirror_x in (False, True):
+                for mirror_y in (False, True):
+                    orders.append(
+                        [(width - 1 - x if mirror_x else x, height - 1 - y if mirror_y else y) for x, y in spiral]
+                    )
+        return _route_table([orders] * n_agents)
+
+
+class RandomStripPlanner(_WaypointPlanner):
+    """Message-free random strips: each UAV picks one of the N vertical strips of :class:`LawnmowerPlanner` at random,
+    sweeps it, then sweeps the next strips in cyclic order; no messages and no agent-based partition.
+
+    The choice is a hash of (``seed``, the UAV's ``proprio`` at its first step, its slot's agent index), as in
+    :class:`RandomPlanner`: a pure function of the episode, independent between UAVs, so two UAVs pick the same
+    strip with probability 1/N. With distinct strips it matches the lawnmower; with shared ones it sweeps twice.
+
+    :param config: the env configuration
+    :param seed: seed of the hash
+    """
+
+    def __init__(self, config: SwarmConfig | None = None, seed: int = 0) -> None:
+        super().__init__(config)
+        self.seed = _check_seed(seed)
+
+    def _build_routes(self, n_agents: int) -> tuple[np.ndarray, np.ndarray]:
+        strips = LawnmowerPlanner(self.config).routes(n_agents)
+        strip_orders = [[strips[0][i, v, : strips[1][i, v]].tolist() for v in range(4)] for i in range(n_agents)]
+        variants = []  # variant 4 k + v: strip k in order v, then strips k + 1, ... each entered at its nearest end
+        for k in range(n_agents):
+            for v in range(4):
+                route = list(strip_orders[k][v])
+                for step in range(1, n_agents):
+                    following = strip_orders[(k + step) % n_agents]
+                    last = np.array(route[-1])
+                    route += min(following, key=lambda order: np.abs(np.array(order[0]) - last).max())
+                variants.append([tuple(p) for p in route])
+        return _route_table([variants] * n_agents)
+
+    def _choose_routes(self, first: np.ndarray, cells: np.ndarray, agent: np.ndarray, proprio: np.ndarray) -> np.ndarray:
+        n_strips = first.shape[1] // 4
+        strip = (_proprio_hash(self.seed, agent, proprio) % np.uint64(n_strips)).astype(np.intp)  # (k,)
+        own = first.reshape(len(first), n_strips, 4, 2)[np.arange(len(first)), strip]  # (k, 4, 2) first waypoints
+        return 4 * strip + super()._choose_routes(own, cells, agent, proprio)
 
 
 # ---------------------------------------------------------------------------------------------- frontier
@@ -413,3 +594,9 @@ class FrontierPlanner(_Planner):
         cost[known] = np.inf
         best = cost.argmin(axis=1)
         return np.where(np.isinf(cost[np.arange(len(best)), best]), -1, best)
+
+
+COORDINATED_PLANNERS = {"lawnmower": LawnmowerPlanner, "frontier": FrontierPlanner}
+"""Planners whose UAVs split the work: by agent index (lawnmower) or over the live links (frontier)."""
+MESSAGE_FREE_PLANNERS = {"sweep": SweepPlanner, "spiral": SpiralPlanner, "random_strip": RandomStripPlanner}
+"""Planners whose UAVs plan alone: no messages, no agent index in the plan."""

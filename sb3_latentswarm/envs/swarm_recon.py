@@ -62,6 +62,7 @@ unweighted ``(r_cov, r_red, r_coll)`` of the last step. Other ``options`` keys a
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import gymnasium
@@ -276,6 +277,11 @@ class SwarmReconEnv(ParallelEnv):
     def _stack_actions(self, actions: dict[str, Any]) -> np.ndarray:
         """Stack the joint action into an (N, 4) float64 array, or raise ``ValueError`` naming the agent."""
         agents = self.agents
+        if not isinstance(actions, Mapping):
+            raise TypeError(
+                f"actions must be a dict {{agent: action}} (PettingZoo's parallel API) for the agents {agents}, got "
+                f"{type(actions).__name__}; for an array of shape (N, 4), pass dict(zip(env.agents, actions))"
+            )
         try:
             command = np.array([actions[agent] for agent in agents], dtype=np.float64)
         except KeyError:

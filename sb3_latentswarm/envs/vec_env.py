@@ -18,7 +18,7 @@ Slot layout: **env-major, agent-minor**. Slot ``k`` is agent ``k % n_agents`` (i
 copy ``k // n_agents``: ``[uav_0 of copy 0, uav_1 of copy 0, ..., uav_0 of copy 1, ...]``; the slots of copy ``c`` are
 ``c * n_agents : (c + 1) * n_agents``. This also holds with ``num_cpus > 1`` (contiguous chunks of copies per process).
 
-Traps of SuperSuit 3.11 + SB3 2.x handled here (see ``/work/shared/LIBRARY_FACTS.md``):
+Traps of SuperSuit 3.11 + SB3 2.x handled here (the documentation lists them: ``docs/env.md``, "SuperSuit traps handled"):
 
 * The copies are cloudpickled from one env, so they share one RNG state unless seeded one by one:
   :class:`SwarmVecEnv` seeds copy ``c`` with ``seed + c`` at the first reset (a random base seed if ``seed`` is

@@ -15,6 +15,9 @@ A subclass of sb3-contrib's ``RecurrentPPO``. What it changes and why (see ``doc
 
 from __future__ import annotations
 
+import io
+import math
+import warnings
 from collections import deque
 from typing import Any, ClassVar, TypeVar
 
@@ -31,6 +34,7 @@ from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
 from sb3_latentswarm.common.buffers import SwarmRolloutBuffer
 from sb3_latentswarm.common.schedules import paper_learning_rate
+from sb3_latentswarm.common.serialization import UnsafeModelFileError, load_plain, read_data, save_plain
 from sb3_latentswarm.common.type_aliases import LatentState
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.latent_ppo.policies import CRITIC_KEYS, LatentSwarmPolicy, SequenceEvaluation, check_observation_space
@@ -38,8 +42,11 @@ from sb3_latentswarm.version import __version__
 
 SelfLatentSwarmPPO = TypeVar("SelfLatentSwarmPPO", bound="LatentSwarmPPO")
 
-SAVE_FORMAT = 1
-"""Version of the saved-model layout; bumped when a change would make older files load wrongly."""
+SAVE_FORMAT = 2
+"""Version of the saved-model layout; bumped when a change would make older files load wrongly. 2: plain data, no
+pickle (:mod:`sb3_latentswarm.common.serialization`); 1: SB3's pickled attributes, read only with ``trust_pickle``."""
+
+PICKLED_SAVE_FORMATS = (1,)
 
 PAPER_LEARNING_RATE = paper_learning_rate()
 """1e-4 for the first 1000 of 1600 updates, 1e-5 after (Sec. IV)."""
@@ -72,17 +79,48 @@ def auxiliary_losses(evaluation: SequenceEvaluation, global_map: th.Tensor) -> t
     return map_loss, pred_loss
 
 
-def check_save_format(data: dict[str, Any] | None, path: Any) -> None:
+def check_save_format(data: dict[str, Any] | None, path: Any, formats: tuple[int, ...] = (SAVE_FORMAT,)) -> None:
     """Raise a clear ``ValueError`` when ``data`` (a saved model's attributes) is not a loadable LatentSwarmPPO file."""
     if not data or "save_format" not in data:
         raise ValueError(f"{path} was not saved by LatentSwarmPPO (no save_format); load it with the class that saved it")
     saved_format, saved_by = data["save_format"], data.get("saved_by_version", "unknown")
-    if saved_format != SAVE_FORMAT:
+    if saved_format not in formats:
         newer = "a newer" if saved_format > SAVE_FORMAT else "an older"
         raise ValueError(
             f"{path} was saved by {newer} sb3-latentswarm ({saved_by}, save format {saved_format}); this is "
             f"sb3-latentswarm {__version__} (save format {SAVE_FORMAT}). Install sb3-latentswarm=={saved_by} to load it."
         )
+
+
+def _check_int(name: str, value: Any, low: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be an int, got {type(value).__name__} ({value!r})")
+    if value < low:
+        raise ValueError(f"{name} must be >= {low}, got {value}")
+
+
+def _check_number(name: str, value: Any, low: float, high: float = math.inf, low_open: bool = False) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__} ({value!r})")
+    if not math.isfinite(value) or value < low or (low_open and value == low) or value > high:
+        left = "(" if low_open else "["
+        raise ValueError(f"{name} must be a finite number in {left}{low}, {high}], got {value}")
+
+
+def _fitting_chunk_length(n_steps: int, chunk_length: int) -> int:
+    """``chunk_length``, or, when it does not divide ``n_steps``, the largest divisor of ``n_steps`` below it.
+
+    Every training sequence then has the same length (no padding), and a rollout of any length trains.
+    """
+    if n_steps % chunk_length == 0:
+        return chunk_length
+    fitting = max(d for d in range(1, min(chunk_length, n_steps) + 1) if n_steps % d == 0)
+    warnings.warn(
+        f"chunk_length={chunk_length} does not divide n_steps={n_steps}: training sequences of {fitting} steps are used "
+        f"(pass a chunk_length that divides n_steps to choose another)",
+        stacklevel=3,
+    )
+    return fitting
 
 
 def _env_config(env: VecEnv) -> SwarmConfig | None:
@@ -113,7 +151,8 @@ class LatentSwarmPPO(RecurrentPPO):
     :param vf_coef: c1, weight of the value loss L_VF
     :param map_coef: c2, weight of the map-reconstruction loss L_map
     :param pred_coef: c3, weight of the message-prediction loss L_pred
-    :param chunk_length: steps per training sequence (MAPPO's data chunk); must divide ``n_steps``
+    :param chunk_length: steps per training sequence (MAPPO's data chunk); when it does not divide ``n_steps``, the
+        largest divisor of ``n_steps`` below it is used, with a warning
     :param max_grad_norm: gradient clipping norm
     :param grad_clip: ``"global"``: one norm over all parameters (SB3's); ``"per_group"``: the critic V_omega and the
         rest (actor, latent encoders, decoder, predictor) are clipped to ``max_grad_norm`` separately, as MAPPO's
@@ -174,19 +213,20 @@ class LatentSwarmPPO(RecurrentPPO):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ):
-        for name, value in (("map_coef", map_coef), ("pred_coef", pred_coef), ("vf_coef", vf_coef)):
-            if value < 0:
-                raise ValueError(f"{name} must be >= 0, got {value}")
-        if chunk_length < 1:
-            raise ValueError(f"chunk_length must be >= 1, got {chunk_length}")
-        if n_steps % chunk_length != 0:
-            raise ValueError(f"chunk_length must divide n_steps: n_steps={n_steps}, chunk_length={chunk_length}")
+        for name, value in (("n_steps", n_steps), ("batch_size", batch_size), ("n_epochs", n_epochs)):
+            _check_int(name, value, low=1)
+        _check_int("chunk_length", chunk_length, low=1)
+        for name, value in (("ent_coef", ent_coef), ("vf_coef", vf_coef), ("map_coef", map_coef), ("pred_coef", pred_coef)):
+            _check_number(name, value, low=0.0)
+        _check_number("max_grad_norm", max_grad_norm, low=0.0, low_open=True)
+        for name, value in (("gamma", gamma), ("gae_lambda", gae_lambda)):
+            _check_number(name, value, low=0.0, high=1.0)
+        chunk_length = _fitting_chunk_length(n_steps, chunk_length)
         if grad_clip not in GRAD_CLIP_MODES:
             raise ValueError(f"grad_clip must be one of {GRAD_CLIP_MODES}, got {grad_clip!r}")
         if value_loss not in VALUE_LOSSES:
             raise ValueError(f"value_loss must be one of {VALUE_LOSSES}, got {value_loss!r}")
-        if not huber_delta > 0:
-            raise ValueError(f"huber_delta must be > 0, got {huber_delta}")
+        _check_number("huber_delta", huber_delta, low=0.0, low_open=True)
         policy_kwargs = dict(policy_kwargs or {})
         if "normalize_value" in policy_kwargs and bool(policy_kwargs["normalize_value"]) != bool(normalize_value):
             raise ValueError(
@@ -234,12 +274,7 @@ class LatentSwarmPPO(RecurrentPPO):
         """The env config of training (saved with the model; the evaluation's default)."""
         if self.env is not None:
             self.n_agents = self._check_swarm_env(self.env)
-            sequence = self.n_agents * chunk_length
-            if batch_size is None or batch_size < sequence:
-                raise ValueError(
-                    f"batch_size must hold at least one whole swarm sequence (n_agents * chunk_length = {sequence} "
-                    f"agent-steps), got batch_size={batch_size}"
-                )
+            self._check_batch_size()
         if _init_setup_model:
             self._setup_model()
 
@@ -261,6 +296,16 @@ class LatentSwarmPPO(RecurrentPPO):
         if link_dim != n_agents:
             raise ValueError(f"observation 'link_row' has length {link_dim} but the env reports n_agents={n_agents}")
         return n_agents
+
+    def _check_batch_size(self) -> None:
+        """A minibatch must hold at least one whole (swarm, chunk) sequence of ``n_agents * chunk_length`` agent-steps."""
+        assert self.n_agents is not None
+        sequence = self.n_agents * self.chunk_length
+        if self.batch_size is None or self.batch_size < sequence:
+            raise ValueError(
+                f"batch_size must hold at least one whole swarm sequence (n_agents * chunk_length = {sequence} "
+                f"agent-steps), got batch_size={self.batch_size}"
+            )
 
     # ------------------------------------------------------------------ setup
     def _setup_model(self) -> None:
@@ -339,20 +384,46 @@ class LatentSwarmPPO(RecurrentPPO):
         custom_objects: dict[str, Any] | None = None,
         print_system_info: bool = False,
         force_reset: bool = True,
+        trust_pickle: bool = False,
         **kwargs,
     ) -> LatentSwarmPPO:
         """Load a model; ``env`` may have another number of agents or env copies than the training env.
 
-        Files of another save format fail with a ``ValueError`` naming both versions instead of loading wrongly.
+        Loading runs no code from the file: the attributes are plain JSON and the tensors are read with
+        ``torch.load(weights_only=True)`` (see :mod:`sb3_latentswarm.common.serialization`). ``kwargs`` replace saved
+        constructor arguments and pass the constructor's checks. Files of another save format fail with a
+        ``ValueError`` naming both versions instead of loading wrongly.
+
+        :param trust_pickle: also read files whose attributes are pickled (SB3's format, and this package's files
+            before save format 2). Unpickling runs whatever code the file carries: only for files you trust.
+        :param custom_objects: SB3's replacements for pickled attributes (with ``trust_pickle`` only)
+        :raise UnsafeModelFileError: (a ``ValueError``) for a pickled file without ``trust_pickle=True``
         """
-        data, _, _ = load_from_zip_file(path, device="cpu", custom_objects=custom_objects, load_data=True)
-        check_save_format(data, path)
-        model = super().load(
-            path, env=None, device=device, custom_objects=custom_objects, print_system_info=print_system_info, **kwargs
-        )
+        raw, pickled = read_data(path)
+        if pickled and not trust_pickle:
+            raise UnsafeModelFileError(path, pickled)
+        if pickled:
+            data, _, _ = load_from_zip_file(path, device="cpu", custom_objects=custom_objects, load_data=True)
+            check_save_format(data, path, PICKLED_SAVE_FORMATS)
+            trusted = super().load(path, env=None, device=device, custom_objects=custom_objects)
+            path = io.BytesIO()  # from here on the same path as a plain file, so that kwargs meet the same checks
+            trusted.save(path)
+            raw, _ = read_data(path)
+        check_save_format(raw, path)
+        model = load_plain(cls, path, raw, device=device, print_system_info=print_system_info, **kwargs)
+        model._check_batch_size()
         if env is not None:
             model.set_env(env, force_reset=force_reset)
         return model
+
+    def save(self, path, exclude=None, include=None) -> None:  # type: ignore[override]
+        """Save the model as plain data and tensors (no pickle): see :mod:`sb3_latentswarm.common.serialization`.
+
+        The file holds no path of this machine (``tensorboard_log`` is not kept) and no state of a rollout in progress.
+        """
+        self.save_format = SAVE_FORMAT
+        self.saved_by_version = __version__
+        save_plain(self, path, exclude=exclude, include=include)
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "_last_latent_state", "_swarm_summaries"]

@@ -1,0 +1,114 @@
+"""Training callbacks that count in swarms and agent-steps.
+
+SB3's ``EvalCallback`` on a swarm VecEnv counts each swarm episode once per agent (every slot reports the end of the
+shared episode) and its ``eval_freq`` counts calls of ``on_step``, i.e. vec-env steps of ``n_envs * n_agents``
+agent-steps. :class:`SwarmEvalCallback` evaluates whole swarm episodes with :func:`~sb3_latentswarm.evaluation.evaluate`
+and counts its frequency in agent-steps, SB3's ``num_timesteps``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.evaluation import CONDITIONS, evaluate
+
+
+class SwarmEvalCallback(BaseCallback):
+    """Evaluate the swarm every ``eval_freq`` agent-steps and log coverage, collisions and steps to 90 % under ``eval/``.
+
+    The evaluation runs at the end of the first rollout at or past each multiple of ``eval_freq`` (so between updates,
+    never inside a rollout: it evaluates the policy that collected that rollout), on its own env copies: training's
+    envs and carried latent state are not touched. Each swarm episode counts once. Logged keys (means over the
+    ``n_eval_episodes`` swarm episodes): ``eval/coverage`` (final coverage, %), ``eval/coverage_std``,
+    ``eval/collisions``, ``eval/steps_to_90`` (over the episodes that reached 90 %; NaN when none did),
+    ``eval/reached_90`` (fraction of episodes that reached 90 %), ``eval/episode_return``.
+
+    :param eval_freq: agent-steps between evaluations (SB3's ``num_timesteps``; one update is ``n_steps * n_envs *
+        n_agents`` of them)
+    :param n_eval_episodes: swarm episodes per evaluation
+    :param config: env config of the evaluation (default: the training env's, ``model.swarm_config``)
+    :param condition: one of :data:`~sb3_latentswarm.evaluation.CONDITIONS`
+    :param p_fail: link failure probability (default: the config's)
+    :param deterministic: act with the policy's mean action (``False``: sample it)
+    :param seed: episode ``k`` of every evaluation uses env seed ``seed + k`` (the same maps each time)
+    :param best_model_save_path: if given, the model is saved there as ``best_model.zip`` whenever the mean coverage
+        improves
+    :param verbose: 1 prints one line per evaluation
+    """
+
+    def __init__(
+        self,
+        eval_freq: int,
+        n_eval_episodes: int = 10,
+        config: SwarmConfig | None = None,
+        condition: str = "proposed",
+        p_fail: float | None = None,
+        deterministic: bool = True,
+        seed: int = 0,
+        best_model_save_path: str | Path | None = None,
+        verbose: int = 0,
+    ):
+        super().__init__(verbose)
+        if isinstance(eval_freq, bool) or not isinstance(eval_freq, (int, np.integer)) or eval_freq < 1:
+            raise ValueError(f"eval_freq must be an int >= 1 (agent-steps), got {eval_freq!r}")
+        if condition not in CONDITIONS:
+            raise ValueError(f"Unknown condition {condition!r}; allowed conditions: {list(CONDITIONS)}")
+        self.eval_freq = int(eval_freq)
+        self.n_eval_episodes = n_eval_episodes
+        self.config = config
+        self.condition = condition
+        self.p_fail = p_fail
+        self.deterministic = deterministic
+        self.seed = seed
+        self.best_model_save_path = None if best_model_save_path is None else Path(best_model_save_path)
+        self.best_coverage = -math.inf
+        self.evaluations: list[dict[str, Any]] = []
+        """One dict per evaluation: ``num_timesteps`` and the logged means."""
+        self._next_evaluation = self.eval_freq
+
+    def _init_callback(self) -> None:
+        self._next_evaluation = (self.num_timesteps // self.eval_freq + 1) * self.eval_freq
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_end(self) -> None:
+        if self.num_timesteps < self._next_evaluation:
+            return
+        self._next_evaluation = (self.num_timesteps // self.eval_freq + 1) * self.eval_freq
+        episodes = evaluate(
+            self.model,
+            self.condition,
+            p_fail=self.p_fail,
+            n_episodes=self.n_eval_episodes,
+            seed=self.seed,
+            config=self.config,
+            deterministic=self.deterministic,
+        )
+        reached = episodes["steps_to_90"].notna()
+        result = {
+            "coverage": float(episodes["coverage"].mean()),
+            "coverage_std": float(episodes["coverage"].std(ddof=0)),
+            "collisions": float(episodes["collisions"].mean()),
+            "steps_to_90": float(episodes.loc[reached, "steps_to_90"].mean()) if reached.any() else math.nan,
+            "reached_90": float(reached.mean()),
+            "episode_return": float(episodes["episode_return"].mean()),
+        }
+        for key, value in result.items():
+            self.logger.record(f"eval/{key}", value)
+        self.evaluations.append({"num_timesteps": self.num_timesteps, **result})
+        if self.verbose >= 1:
+            print(
+                f"Eval at {self.num_timesteps:,} agent-steps: coverage {result['coverage']:.1f} %, collisions "
+                f"{result['collisions']:.1f}, 90 % reached in {result['reached_90']:.0%} of {self.n_eval_episodes} episodes"
+            )
+        if self.best_model_save_path is not None and result["coverage"] > self.best_coverage:
+            self.best_coverage = result["coverage"]
+            self.best_model_save_path.mkdir(parents=True, exist_ok=True)
+            self.model.save(self.best_model_save_path / "best_model.zip")

@@ -1,0 +1,193 @@
+"""The tables, plots and ``run.md`` of a sweep, computed from its finished trials' raw files only.
+
+``write_report(output)`` can be rerun at any time (``sb3-latentswarm sweep ... --resume`` does it after the trials):
+
+* ``episodes.csv``: every evaluation episode of every trial (tidy: one row per trial x cell x episode);
+* ``scores.csv``: one row per trial and cell, the run's scores (:data:`~.trial.SCORE_METRICS`);
+* ``aggregate.csv`` / ``aggregate.md``: per (grid point, variant, cell) and metric, across training seeds, the IQM and
+  the mean, each with its 95 % stratified-bootstrap interval (:mod:`.aggregate`);
+* ``intervals_<metric>.png``: bars (IQM) with interval whiskers per cell and variant;
+* ``learning_curves.png``: coverage and episode return during training, mean across seeds with a 95 % band;
+* ``run.md``: command, commit, machines, budget and seeds, then the tables.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from sb3_latentswarm.experiments.aggregate import aggregate_scores, mean, stratified_bootstrap_ci
+from sb3_latentswarm.experiments.trial import SCORE_METRICS, all_conditions, finished_trial_dirs, run_scores
+
+METRIC_LABELS = {
+    "coverage": "Coverage (%)",
+    "collisions": "Collisions per episode",
+    "steps_to_90": "Steps to 90 % coverage",
+    "reached_90": "Episodes reaching 90 % (%)",
+}
+CELL_COLUMNS = ("eval_set", "condition", "p_fail")
+
+
+def _read_trials(output: Path, name: str) -> pd.DataFrame:
+    paths = [folder / name for folder in finished_trial_dirs(output)]
+    frames = [pd.read_csv(path) for path in paths if path.stat().st_size > 1]
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+def _interval_text(point: float, low: float, high: float) -> str:
+    return "N/A" if np.isnan(point) else f"{point:.2f} [{low:.2f}, {high:.2f}]"
+
+
+def aggregate_markdown(aggregate: pd.DataFrame, group_columns: list[str]) -> str:
+    """One markdown table per metric: a row per group, its seeds, IQM and mean with their 95 % intervals."""
+    from sb3_latentswarm.evaluation import to_markdown
+
+    sections = []
+    for metric, rows in aggregate.groupby("metric", sort=False):
+        table = rows[group_columns].copy()
+        table["seeds"] = rows["n_runs"]
+        table["IQM [95 % CI]"] = [_interval_text(*v) for v in rows[["iqm", "iqm_low", "iqm_high"]].to_numpy()]
+        table["mean [95 % CI]"] = [_interval_text(*v) for v in rows[["mean", "mean_low", "mean_high"]].to_numpy()]
+        sections.append(f"### {METRIC_LABELS.get(metric, metric)}\n\n{to_markdown(table)}\n")
+    return "\n".join(sections)
+
+
+def _plot_intervals(aggregate: pd.DataFrame, group_columns: list[str], output: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cell_columns = [c for c in group_columns if c != "variant"]
+    names = []
+    for metric, rows in aggregate.groupby("metric", sort=False):
+        cells = list(dict.fromkeys(map(tuple, rows[cell_columns].astype(str).to_numpy())))
+        variants = list(dict.fromkeys(rows["variant"]))
+        width = 0.8 / len(variants)
+        figure, axis = plt.subplots(figsize=(max(6.0, 0.9 * len(cells) * len(variants) ** 0.5), 4.0))
+        for k, variant in enumerate(variants):
+            by_cell = {tuple(map(str, r[cell_columns])): r for _, r in rows[rows["variant"] == variant].iterrows()}
+            x, height, low, high = [], [], [], []
+            for i, cell in enumerate(cells):
+                if cell in by_cell and not np.isnan(by_cell[cell]["iqm"]):
+                    r = by_cell[cell]
+                    x.append(i + (k - (len(variants) - 1) / 2) * width)
+                    height.append(r["iqm"])
+                    low.append(r["iqm"] - r["iqm_low"])
+                    high.append(r["iqm_high"] - r["iqm"])
+            axis.bar(x, height, width, yerr=[low, high], capsize=3, label=variant)
+        axis.set_xticks(range(len(cells)), ["\n".join(c for c in cell if c != "nan") for cell in cells], fontsize=7)
+        axis.set_ylabel(f"{METRIC_LABELS.get(metric, metric)}, IQM")
+        axis.set_title("IQM across training seeds, 95 % stratified-bootstrap CI")
+        axis.legend(fontsize=8)
+        figure.tight_layout()
+        name = f"intervals_{metric}.png"
+        figure.savefig(output / name, dpi=120)
+        plt.close(figure)
+        names.append(name)
+    return names
+
+
+def _plot_learning_curves(progress: pd.DataFrame, grid_columns: list[str], output: Path) -> str | None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if progress.empty:
+        return None
+    progress = progress.assign(report=progress.groupby("trial_id").cumcount())
+    metrics = [m for m in ("coverage", "episode_reward") if progress[m].notna().any()]
+    if not metrics:
+        return None
+    figure, axes = plt.subplots(1, len(metrics), figsize=(5.5 * len(metrics), 3.8), squeeze=False)
+    for axis, metric in zip(axes[0], metrics):
+        for group, runs in progress.groupby([*grid_columns, "variant"], sort=False):
+            group = group if isinstance(group, tuple) else (group,)
+            curves = runs.pivot(index="train_seed", columns="report", values=metric)  # (n_seeds, n_reports)
+            steps = runs.groupby("report")["agent_steps"].mean().to_numpy()
+            points = [stratified_bootstrap_ci(c[np.isfinite(c)], mean, reps=2000) if np.isfinite(c).any() else (np.nan,) * 3
+                      for c in curves.to_numpy().T]
+            point, low, high = np.array(points).T
+            label = ", ".join(map(str, group))
+            axis.plot(steps, point, marker="o" if len(steps) < 30 else None, label=f"{label} ({len(curves)} seeds)")
+            axis.fill_between(steps, low, high, alpha=0.25)
+        axis.set_xlabel("agent-steps")
+        axis.set_ylabel({"coverage": "coverage of finished episodes (%)", "episode_reward": "episode return"}[metric])
+        axis.legend(fontsize=8)
+    figure.suptitle("Training: mean across seeds, 95 % bootstrap band")
+    figure.tight_layout()
+    figure.savefig(output / "learning_curves.png", dpi=120)
+    plt.close(figure)
+    return "learning_curves.png"
+
+
+def _in_sweep_order(frame: pd.DataFrame, columns: list[str], spec: dict) -> pd.DataFrame:
+    """``frame`` sorted by ``columns``, with variants, evaluation sets and conditions in the order the sweep names them."""
+    ranks = {"variant": spec["variants"], "eval_set": [s["name"] for s in spec["eval_sets"]], "condition": all_conditions()}
+
+    def rank(column: pd.Series) -> pd.Series:
+        return column.map({value: i for i, value in enumerate(ranks[column.name])}) if column.name in ranks else column
+
+    return frame.sort_values(columns, key=rank, kind="stable", ignore_index=True)
+
+
+def write_report(output: str | Path, commit: str | None = None) -> pd.DataFrame:
+    """Write the tables, plots and ``run.md`` of the sweep in ``output`` from its finished trials.
+
+    :param commit: the code that writes the report (default: the first trial's); each trial records its own
+    :return: the aggregate table (long format, see :func:`~.aggregate.aggregate_scores`)
+    """
+    from sb3_latentswarm.common.run_record import write_run_record
+
+    output = Path(output)
+    spec = json.loads((output / "sweep.json").read_text())
+    records = [json.loads((folder / "trial.json").read_text()) for folder in finished_trial_dirs(output)]
+    if not records:
+        raise ValueError(f"{output}: no finished trial to report")
+    grid_columns = list(spec["grid"])
+    episodes = _read_trials(output, "episodes.csv")
+    episodes.to_csv(output / "episodes.csv", index=False)
+    run_columns = [*grid_columns, *CELL_COLUMNS, "variant", "train_seed", "trial_id"]
+    scores = _in_sweep_order(run_scores(episodes, run_columns), run_columns, spec)
+    scores.to_csv(output / "scores.csv", index=False)
+    group_columns = [*grid_columns, *CELL_COLUMNS, "variant"]  # the variants of one cell side by side
+    aggregate = aggregate_scores(scores, group_columns, SCORE_METRICS)
+    aggregate.to_csv(output / "aggregate.csv", index=False)
+    markdown = aggregate_markdown(aggregate, group_columns)
+    (output / "aggregate.md").write_text(markdown)
+    figures = _plot_intervals(aggregate, group_columns, output)
+    curves = _plot_learning_curves(_read_trials(output, "progress.csv"), grid_columns, output)
+    if curves:
+        figures.append(curves)
+
+    seeds_per_variant = scores.groupby("variant")["train_seed"].nunique().to_dict()
+    machines = sorted({f"{r['node']}: {r['machine']}" for r in records})
+    trained = sorted({r["trained_agent_steps"] for r in records})
+    eval_sets = ", ".join(
+        f"{s['name']} ({', '.join(f'{k}={v}' for k, v in s['overrides'].items()) or 'preset config'}; "
+        f"{', '.join(s['conditions']) if s['conditions'] else 'every condition'})"
+        for s in spec["eval_sets"]
+    )
+    expected = len(spec["variants"]) * len(spec["seeds"]) * int(np.prod([len(v) for v in spec["grid"].values()]))
+    facts = [
+        f"preset: {spec['preset']}" + (f", with {spec['overrides']}" if spec["overrides"] else ""),
+        f"variants: {', '.join(spec['variants'])}; training seeds {spec['seeds']} (finished per variant: {seeds_per_variant})",
+        f"trials: {len(records)} of {expected} finished" + (f"; grid {spec['grid']}" if spec["grid"] else ""),
+        f"budget: {records[0]['budget_agent_steps']:,} agent-steps per trial "
+        f"(trained: {', '.join(f'{t:,}' for t in trained)}; SB3 finishes the last rollout)",
+        f"evaluation: {spec['eval_episodes']} episodes per cell, env seeds {spec['eval_seed']}.."
+        f"{spec['eval_seed'] + spec['eval_episodes'] - 1} (held out), "
+        f"{'mean' if spec['deterministic'] else 'sampled'} actions; cells: {eval_sets}",
+        "intervals: across training seeds, a run's score in a cell is its mean over the cell's episodes; IQM and mean "
+        "with 95 % stratified percentile-bootstrap CIs (10,000 replicates, our NumPy port of rliable's method)",
+        f"trial commits: {', '.join(sorted({r['commit'] for r in records}))}",
+        f"trial machines: {'; '.join(machines)}",
+        f"train wall time per trial: {np.median([r['train_seconds'] for r in records]):.0f} s (median)",
+    ]
+    body = ["## Across-seed intervals", "", markdown, "## Figures", "", *(f"![{name}]({name})" for name in figures), ""]
+    write_run_record(output, f"Sweep: preset `{spec['preset']}`", commit or records[0]["commit"], facts, body)
+    return aggregate

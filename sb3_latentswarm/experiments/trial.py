@@ -1,0 +1,266 @@
+"""One trial of a sweep: train one (variant, training seed, grid point), save the model, evaluate it on held-out seeds.
+
+This module needs no Ray: :func:`train_and_evaluate` takes a ``report`` function, which the Ray Tune trainable of
+:mod:`sb3_latentswarm.experiments.sweep` sets to ``ray.tune.report``.
+
+Seeds. Training seed ``k`` seeds the algorithm with ``k`` and the env copies with ``k * n_envs + c`` (``c`` the copy
+index), so the copies of different training seeds never share a reset seed. Evaluation episode ``e`` uses env seed
+``eval_seed + e`` (default :data:`EVAL_SEED_BASE` = 1,000,000), disjoint from every training seed, and the same for
+every trial and cell: the variants are compared on the same maps and start positions (common random numbers).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import platform
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_latentswarm import evaluation
+from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.presets import Preset, get_preset
+
+VARIANTS = ("proposed", "no_comm", "independent")
+"""The learners a sweep trains: LatentSwarmPPO, the same trained without links, independent RecurrentPPO."""
+EVAL_SEED_BASE = 1_000_000
+"""First env seed of the evaluation episodes (training env seeds stay below it)."""
+SCORE_METRICS = ("coverage", "collisions", "steps_to_90", "reached_90")
+"""Per-run scores of an evaluation cell: means over its episodes (``steps_to_90`` over the episodes that reached 90 %
+coverage, NaN if none did; ``reached_90`` is the percentage that did)."""
+
+
+@dataclass(frozen=True)
+class EvalSet:
+    """A named evaluation cell family: env config overrides, evaluated under some test-time conditions.
+
+    :param name: the ``eval_set`` column of the output tables
+    :param overrides: :class:`~sb3_latentswarm.SwarmConfig` fields replaced in the trial's env config (``p_fail``
+        included; a condition still sets its own ``link_mode``)
+    :param conditions: the conditions of :mod:`sb3_latentswarm.evaluation` to run; ``None``: every condition it
+        knows, :func:`all_conditions` (read when the trial runs, so new conditions join automatically)
+    """
+
+    name: str
+    overrides: dict[str, Any] = field(default_factory=dict)
+    conditions: tuple[str, ...] | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "overrides": dict(self.overrides), "conditions": self.conditions and list(self.conditions)}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> EvalSet:
+        conditions = data.get("conditions")
+        return cls(data["name"], dict(data.get("overrides") or {}), tuple(conditions) if conditions else None)
+
+
+def all_conditions() -> tuple[str, ...]:
+    """Every test-time condition: Table I's five, then the extensions of :mod:`sb3_latentswarm.evaluation`."""
+    return evaluation.CONDITIONS + evaluation.EXTRA_CONDITIONS
+
+
+def default_eval_sets(preset: Preset) -> list[EvalSet]:
+    """Table I: every condition (:func:`all_conditions`) at the preset's p_f (``table1``), and the proposed condition at
+    each p_f of the preset's sweep (``p_fail=0``, ``p_fail=0.05``, ...)."""
+    return [EvalSet("table1")] + [EvalSet(f"p_fail={p:g}", {"p_fail": p}, ("proposed",)) for p in preset.p_fails]
+
+
+def trial_preset(preset_name: str, overrides: dict[str, Any], grid_point: dict[str, Any]) -> Preset:
+    """The preset of a trial: the named preset with the sweep's ``--set`` overrides, then its grid point."""
+    return get_preset(preset_name).with_overrides(**{**overrides, **grid_point})
+
+
+def training_env_seed(train_seed: int, n_envs: int) -> int:
+    """Base seed of the training env copies of training seed ``train_seed`` (copy ``c``: base + ``c``)."""
+    return train_seed * n_envs
+
+
+def conditions_for(variant: str, conditions: Sequence[str]) -> list[str]:
+    """The conditions a variant can be evaluated under: the independent learner has no predictor or memory to switch
+    off, so it runs only the conditions that change the links alone."""
+    if variant != "independent":
+        return list(conditions)
+    return [c for c in conditions if not any(evaluation._SWITCHES[c])]
+
+
+class TuneProgress(BaseCallback):
+    """Reports training progress after every rollout: agent-steps, mean episode return, coverage and collisions of
+    the episodes finished since the last report (coverage in %, NaN when none finished).
+
+    :param report: called with the metrics dict (``ray.tune.report`` in a sweep)
+    """
+
+    def __init__(self, report: Callable[[dict[str, float]], None] | None = None):
+        super().__init__()
+        self.report = report
+        self.rows: list[dict[str, float]] = []
+        self._summaries: list[dict[str, Any]] = []
+
+    def _on_step(self) -> bool:
+        # every slot of a finished swarm carries its summary: a swarm counts once per agent, the same weight for all
+        self._summaries.extend(info["swarm_summary"] for info in self.locals["infos"] if "swarm_summary" in info)
+        return True
+
+    def _on_rollout_end(self) -> None:
+        returns = [info["r"] for info in self.model.ep_info_buffer]
+        row = {
+            "agent_steps": float(self.num_timesteps),
+            "episode_reward": float(np.mean(returns)) if returns else math.nan,
+            "coverage": 100.0 * float(np.mean([s["coverage"] for s in self._summaries])) if self._summaries else math.nan,
+            "collisions": float(np.mean([s["collisions"] for s in self._summaries])) if self._summaries else math.nan,
+        }
+        self._summaries.clear()
+        self.rows.append(row)
+        if self.report is not None:
+            self.report(row)
+
+
+def evaluate_sets(
+    model: Any,
+    variant: str,
+    config: SwarmConfig,
+    eval_sets: Sequence[EvalSet],
+    n_episodes: int,
+    eval_seed: int = EVAL_SEED_BASE,
+    deterministic: bool = True,
+) -> pd.DataFrame:
+    """Per-episode rows (:data:`~sb3_latentswarm.evaluation.EPISODE_COLUMNS` plus ``eval_set``) of ``model`` in every
+    cell of ``eval_sets``, all on the env seeds ``eval_seed .. eval_seed + n_episodes - 1``."""
+    frames = []
+    for eval_set in eval_sets:
+        conditions = conditions_for(variant, eval_set.conditions or all_conditions())
+        if not conditions:
+            continue
+        frame = evaluation.evaluate_conditions(
+            model,
+            conditions=conditions,
+            p_fail=None,  # the cell's config carries p_f (the trial's, or the set's override)
+            n_episodes=n_episodes,
+            seed=eval_seed,
+            config=config.replace(**eval_set.overrides),
+            deterministic=deterministic,
+        )
+        frames.append(frame.assign(eval_set=eval_set.name))
+    return pd.concat(frames, ignore_index=True)
+
+
+def run_scores(episodes: pd.DataFrame, by: Sequence[str]) -> pd.DataFrame:
+    """One row per group ``by`` (a run in a cell) with its :data:`SCORE_METRICS`, means over the group's episodes."""
+    grouped = episodes.groupby(list(by), sort=False, dropna=False)
+    scores = grouped.agg(
+        coverage=("coverage", "mean"),
+        collisions=("collisions", "mean"),
+        steps_to_90=("steps_to_90", "mean"),  # pandas skips NaN: the mean over the episodes that reached 90 %
+        reached_90=("steps_to_90", lambda steps: 100.0 * steps.notna().mean()),
+        episodes=("coverage", "size"),
+    )
+    return scores.reset_index()
+
+
+def finished_trial_dirs(output: Path) -> list[Path]:
+    """The complete trial folders of the sweep in ``output``: ``trials/<trial_id>/`` with its ``trial.json`` (not the
+    hidden ``.<trial_id>.partial`` folders of an interrupted copy)."""
+    paths = (output / "trials").glob("*/trial.json")
+    return sorted(path.parent for path in paths if not path.parent.name.startswith("."))
+
+
+def train_and_evaluate(
+    trial: dict[str, Any],
+    output: Path,
+    report: Callable[[dict[str, float]], None] | None = None,
+    device: str = "auto",
+) -> dict[str, Any]:
+    """Train the trial's variant, save ``model.zip``, evaluate it, and write its raw results into ``output``.
+
+    :param trial: ``trial_id``, ``variant``, ``train_seed``, ``grid_point`` and the sweep's ``spec`` (preset name,
+        overrides, eval sets, eval episodes and seed, deterministic) and ``commit``; see
+        :func:`sb3_latentswarm.experiments.sweep.plan_trials`
+    :param report: called with the progress metrics after every rollout
+    :return: the trial record (also written as ``trial.json``); ``episodes.csv`` holds one row per evaluation
+        episode, ``progress.csv`` one row per rollout
+    """
+    from sb3_latentswarm.baselines.independent import train_independent_ppo
+    from sb3_latentswarm.common.run_record import machine_summary
+    from sb3_latentswarm.envs import make_vec_env
+    from sb3_latentswarm.latent_ppo import LatentSwarmPPO
+
+    spec = trial["spec"]
+    variant, train_seed, grid_point = trial["variant"], int(trial["train_seed"]), dict(trial["grid_point"])
+    preset = trial_preset(spec["preset"], spec["overrides"], grid_point)
+    # no_comm trains the same architecture with every link down; it is evaluated on the same env as the others
+    train_config = preset.config.replace(link_mode="none") if variant == "no_comm" else preset.config
+    env_seed = training_env_seed(train_seed, preset.n_envs)
+    env = make_vec_env(preset.n_envs, config=train_config, seed=env_seed)
+    progress = TuneProgress(report)
+    start = time.perf_counter()
+    if variant == "independent":
+        model = train_independent_ppo(env, preset.total_timesteps, seed=train_seed, device=device, callback=progress)
+        trained_steps = model.model.num_timesteps
+    else:
+        model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=train_seed, device=device, **preset.algo_kwargs)
+        model.learn(total_timesteps=preset.total_timesteps, callback=progress)
+        trained_steps = model.num_timesteps
+    train_seconds = time.perf_counter() - start
+    output.mkdir(parents=True, exist_ok=True)
+    model.save(output / "model.zip")
+
+    start = time.perf_counter()
+    eval_sets = [EvalSet.from_dict(s) for s in spec["eval_sets"]]
+    episodes = evaluate_sets(
+        model, variant, preset.config, eval_sets, spec["eval_episodes"], spec["eval_seed"], spec["deterministic"]
+    )
+    eval_seconds = time.perf_counter() - start
+    labels = {"trial_id": trial["trial_id"], "variant": variant, "train_seed": train_seed, **grid_point}
+    episodes = episodes.assign(**labels)
+    episodes.to_csv(output / "episodes.csv", index=False)
+    pd.DataFrame(progress.rows).assign(**labels).to_csv(output / "progress.csv", index=False)
+
+    record = {
+        **labels,
+        "grid_point": grid_point,
+        "preset": spec["preset"],
+        "commit": trial["commit"],
+        "machine": machine_summary(model.device if variant != "independent" else model.model.device),
+        "node": platform.node(),
+        "train_config": train_config.to_dict(),
+        "eval_config": preset.config.to_dict(),
+        "algo_kwargs": preset.algo_kwargs if variant != "independent" else "train_independent_ppo defaults",
+        "n_envs": preset.n_envs,
+        "training_env_seeds": [env_seed, env_seed + preset.n_envs - 1],
+        "eval_env_seeds": [spec["eval_seed"], spec["eval_seed"] + spec["eval_episodes"] - 1],
+        "budget_agent_steps": preset.total_timesteps,
+        "trained_agent_steps": int(trained_steps),
+        "train_seconds": train_seconds,
+        "eval_seconds": eval_seconds,
+        "eval_sets": spec["eval_sets"],
+        "deterministic": spec["deterministic"],
+        # the first cell's proposed-condition means, for Tune's console
+        "eval_coverage": float(episodes["coverage"].iloc[: spec["eval_episodes"]].mean()),
+    }
+    (output / "trial.json").write_text(json.dumps(record, indent=2, default=repr))
+    return record
+
+
+__all__ = [
+    "EVAL_SEED_BASE",
+    "all_conditions",
+    "SCORE_METRICS",
+    "VARIANTS",
+    "EvalSet",
+    "TuneProgress",
+    "conditions_for",
+    "default_eval_sets",
+    "evaluate_sets",
+    "finished_trial_dirs",
+    "run_scores",
+    "train_and_evaluate",
+    "trial_preset",
+    "training_env_seed",
+]

@@ -1,0 +1,47 @@
+"""SwarmEvalCallback: evaluations of whole swarm episodes, every eval_freq agent-steps, logged under eval/."""
+
+import pandas as pd
+import pytest
+from stable_baselines3.common.logger import configure
+
+from sb3_latentswarm import LatentSwarmPPO, SwarmConfig, make_vec_env
+from sb3_latentswarm.callbacks import SwarmEvalCallback
+from sb3_latentswarm.evaluation import evaluate
+
+SMALL = SwarmConfig(n_agents=3, grid_width=10, grid_height=10, max_steps=20, num_obstacles=5)
+TINY_POLICY = dict(latent_dim=8, predictor_hidden=16, decoder_hidden=16, critic_hidden=16, actor_hidden=16)
+
+
+def test_swarm_eval_callback_counts_swarm_episodes_and_agent_steps(tmp_path):
+    model = LatentSwarmPPO(
+        "LatentSwarmPolicy",
+        make_vec_env(2, config=SMALL, seed=0),
+        n_steps=20,
+        chunk_length=5,
+        batch_size=30,
+        n_epochs=1,
+        learning_rate=0.0,  # the policy stays as evaluated, so evaluate() afterwards must give the same numbers
+        policy_kwargs=TINY_POLICY,
+        seed=0,
+    )
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    per_update = 20 * 2 * 3  # n_steps * n_envs * n_agents agent-steps
+    callback = SwarmEvalCallback(eval_freq=2 * per_update, n_eval_episodes=3, best_model_save_path=tmp_path)
+    model.learn(total_timesteps=4 * per_update, callback=callback)
+    assert [e["num_timesteps"] for e in callback.evaluations] == [2 * per_update, 4 * per_update]
+    # each evaluation is 3 swarm episodes of the training config: the same numbers as evaluate() on them
+    expected = evaluate(model, n_episodes=3, seed=0)
+    assert callback.evaluations[-1]["coverage"] == pytest.approx(expected["coverage"].mean())
+    assert callback.evaluations[-1]["collisions"] == pytest.approx(expected["collisions"].mean())
+    progress = pd.read_csv(tmp_path / "progress.csv")
+    for key in ("eval/coverage", "eval/collisions", "eval/steps_to_90", "eval/reached_90"):
+        assert key in progress.columns, key
+    assert progress["eval/coverage"].notna().sum() == 2
+    assert (tmp_path / "best_model.zip").exists()
+
+
+def test_swarm_eval_callback_rejects_bad_arguments():
+    with pytest.raises(ValueError, match="eval_freq must be an int >= 1"):
+        SwarmEvalCallback(eval_freq=0)
+    with pytest.raises(ValueError, match="Unknown condition"):
+        SwarmEvalCallback(eval_freq=10, condition="everything")

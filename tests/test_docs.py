@@ -1,0 +1,65 @@
+"""The documentation's generated parts: the results page built from ``docs/results/``."""
+
+import re
+import runpy
+from pathlib import Path
+
+DOCS = Path(__file__).resolve().parents[1] / "docs"
+
+
+def results_page() -> str:
+    conf = runpy.run_path(str(DOCS / "conf.py"))
+    return conf["_place_results"]((DOCS / "results.md").read_text())
+
+
+def test_results_page_places_every_folder_once_under_a_title_of_its_own():
+    source = (DOCS / "results.md").read_text()
+    placed = re.findall(r"^<!-- results-folder: ([\w.-]+) -->$", source, re.MULTILINE)
+    folders = sorted(p.name for p in (DOCS / "results").iterdir() if p.is_dir())
+    assert sorted(placed) == folders
+    page = results_page()
+    titles = re.findall(r"^#{2,3} (.+)$", page, re.MULTILINE)
+    assert len(titles) == len(set(titles)), titles
+    # the reports' own "# Table I run: preset `fast`" titles, alike in every folder, are left out
+    assert "Table I run" not in page
+    # newest first: the short-rollout run above the 1800-update run, the 300-update checkpoint last
+    assert placed.index("fast_short_rollouts") < placed.index("fast_1800_updates") < placed.index("fast")
+    assert placed[-1] == "fast"
+
+
+def test_every_results_plot_has_a_caption():
+    page = results_page()
+    figures = re.findall(r"```\{figure\} (\S+)\n:alt: \S+\n\n(.+)\n```", page)
+    images = sorted(p for p in (DOCS / "results").glob("*/*") if p.suffix in (".png", ".gif"))
+    assert len(figures) == len(images) > 0
+    assert all(caption.strip() for _, caption in figures)
+    assert "{image}" not in page
+
+
+def test_built_pages_are_offline_readable_and_show_no_inherited_torch_docstring(tmp_path):
+    import subprocess
+    import sys
+
+    build = subprocess.run(
+        [sys.executable, "-m", "sphinx", "-q", "-W", "--keep-going", "-b", "html", str(DOCS), str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert build.returncode == 0, build.stderr
+    algorithm = (tmp_path / "algorithm.html").read_text()
+    # LatentSwarmPolicy.__init__ has no docstring: torch's "Initialize internal Module state" must not stand in
+    assert "Initialize internal Module state" not in algorithm
+    # maths: MathJax from the build itself, no CDN
+    assert '<script defer="defer" src="_static/mathjax/tex-chtml.js">' in algorithm
+    assert (tmp_path / "_static" / "mathjax" / "tex-chtml.js").exists()
+    assert not any("cdn.jsdelivr.net" in page.read_text() for page in tmp_path.glob("*.html"))
+    # wide tables wrap instead of being cut off by the theme's nowrap
+    assert '<link rel="stylesheet" type="text/css" href="_static/custom.css' in algorithm
+    assert "white-space: normal" in (tmp_path / "_static" / "custom.css").read_text()
+
+
+def test_package_docstrings_point_only_inside_the_repository():
+    package = DOCS.parent / "sb3_latentswarm"
+    offenders = [p for p in package.rglob("*.py") if "/work/" in p.read_text() or "/tmp/" in p.read_text()]
+    assert offenders == []

@@ -102,6 +102,10 @@ def test_plan_crosses_variants_seeds_and_grid_points():
     trials = plan_trials(spec, "abc")
     assert len(trials) == 2 * 2 * 2 and len({t["trial_id"] for t in trials}) == 8
     assert {"proposed-seed1-p_fail=0.5", "independent-seed0-p_fail=0.1"} <= {t["trial_id"] for t in trials}
+    # --set eval_episodes is the default of --eval-episodes; a larger n_envs moves the training seeds up
+    assert make_spec("smoke", 1, overrides={"eval_episodes": 7})["eval_episodes"] == 7
+    with pytest.raises(ValueError, match="overlaps the training env seeds"):
+        make_spec("smoke", 3, overrides={"n_envs": 400_000})
     eval_sets = [s["name"] for s in spec["eval_sets"]]
     assert eval_sets[0] == "table1" and "p_fail=0.5" in eval_sets  # Table I's conditions and its p_f sweep
 

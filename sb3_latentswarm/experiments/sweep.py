@@ -100,7 +100,7 @@ def make_spec(
     deterministic: bool = True,
 ) -> dict[str, Any]:
     """Validate a sweep's arguments (see :func:`run_sweep`) and return its JSON-able spec; nothing is trained."""
-    base = get_preset(preset)
+    get_preset(preset)  # an unknown name fails here
     if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1:
         raise ValueError(f"--seeds must be an int >= 1, got {seeds!r}")
     variants = list(dict.fromkeys(variants))
@@ -114,6 +114,7 @@ def make_spec(
     empty = [name for name, values in grid.items() if not values]
     if empty:
         raise ValueError(f"--grid: no values for {empty}")
+    base = trial_preset(preset, overrides, {})
     if eval_episodes is None:
         eval_episodes = base.eval_episodes
     if isinstance(eval_episodes, bool) or not isinstance(eval_episodes, int) or eval_episodes < 1:
@@ -130,11 +131,11 @@ def make_spec(
                     f"--eval-set {eval_set.name}: unknown condition {condition!r}; allowed: {list(all_conditions())}"
                 )
     # build every trial's config and every evaluation cell's config now, so a bad value fails before any training
-    for values in itertools.product(*grid.values()):
-        config = trial_preset(preset, overrides, dict(zip(grid, values))).config
-        for eval_set in eval_sets:
-            config.replace(**eval_set.overrides)
-    largest_training_seed = training_env_seed(seeds, base.n_envs)
+    presets = [trial_preset(preset, overrides, dict(zip(grid, values))) for values in itertools.product(*grid.values())]
+    for eval_set in eval_sets:
+        for point_preset in presets:
+            point_preset.config.replace(**eval_set.overrides)
+    largest_training_seed = training_env_seed(seeds, max(p.n_envs for p in presets))
     if eval_seed < largest_training_seed:
         raise ValueError(
             f"eval_seed={eval_seed} overlaps the training env seeds (up to {largest_training_seed - 1}); use a larger one"

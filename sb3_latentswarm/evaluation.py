@@ -468,7 +468,9 @@ def evaluate(
     n_envs = min(int(n_envs), int(n_episodes))
 
     description = f"{condition}, p_f={config.p_fail:g}"
-    progress = tqdm(total=int(n_episodes), desc=description, unit="episode", leave=False) if progress_bar else None
+    progress = None
+    if progress_bar:  # episodes take seconds each: refresh at every one (mininterval=0), so the count is always shown
+        progress = tqdm(total=int(n_episodes), desc=description, unit="episode", leave=False, mininterval=0)
     if policy is None:
         if not callable(getattr(model, "predict", None)):
             raise TypeError(

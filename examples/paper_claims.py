@@ -1,0 +1,147 @@
+"""The paper's claims as testable targets, checked on a finished (or partial) `sb3-latentswarm sweep` output.
+
+Reads the sweep's ``scores.csv`` (one row per trial and evaluation cell: a run's mean over the cell's episodes) and
+writes ``claims.md`` / ``claims.csv`` beside it: each claim, its target, the measured across-seed means with 95 %
+stratified-bootstrap intervals (the sweep's aggregation), and whether the target is met. Nothing is tuned here: the
+cells are the ones the sweep evaluated, on held-out seeds.
+
+    python examples/paper_claims.py --sweep runs/sweeps/coordination --burst-cells table1=10 burst30=30
+
+The claims (issue "The evidence"):
+
+1. Proposed beats the best message-free learner (``no_comm`` in its own condition, or ``independent``) by >= 10
+   coverage points, or reaches 90 % in <= 0.8x the steps, with non-overlapping 95 % intervals.
+2. Full comm is within 1.5 points of Proposed or above it (the paper: an upper bound).
+3. Under bursty outages, Proposed beats No predictor and No memory by >= 5 points each.
+4. Coverage stays within 3 points across p_f 0 .. 0.5.
+5. Collisions per episode with the evaluated actions are at most the paper's 8.7.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import pandas as pd
+
+from sb3_latentswarm.evaluation import to_markdown
+from sb3_latentswarm.experiments.aggregate import aggregate_scores
+
+PAPER_COLLISIONS = 8.7
+"""Collisions per episode of the paper's Proposed model (Table I, N = 3)."""
+
+
+def _interval(row: pd.Series) -> str:
+    return f"{row['mean']:.2f} [{row['mean_low']:.2f}, {row['mean_high']:.2f}] (n={int(row['n_runs'])})"
+
+
+class Cells:
+    """Across-seed mean and interval of one metric for (variant, evaluation set, condition)."""
+
+    def __init__(self, scores: pd.DataFrame) -> None:
+        by = ["variant", "eval_set", "condition"]
+        self.table = aggregate_scores(scores, by, ["coverage", "collisions", "steps_to_90", "reached_90"]).set_index(
+            [*by, "metric"]
+        )
+
+    def get(self, variant: str, eval_set: str, condition: str, metric: str = "coverage") -> pd.Series | None:
+        key = (variant, eval_set, condition, metric)
+        if key not in self.table.index or pd.isna(self.table.loc[key, "mean"]):
+            return None
+        return self.table.loc[key]
+
+
+def check_claims(scores: pd.DataFrame, base_cell: str, burst_cells: dict[str, float], p_fail_cells: list[str]) -> list[dict]:
+    cells = Cells(scores)
+    rows: list[dict] = []
+
+    def row(claim: str, target: str, measured: str, met: bool | None) -> None:
+        rows.append({"claim": claim, "target": target, "measured": measured,
+                     "met": "n/a" if met is None else ("yes" if met else "no")})
+
+    # 1. Proposed vs the best message-free learner, in the training setting of each
+    proposed = cells.get("proposed", base_cell, "proposed")
+    own_setting = {"no_comm": "no_comm", "independent": "proposed"}  # the condition each learner was trained in
+    learners = {variant: cells.get(variant, base_cell, condition) for variant, condition in own_setting.items()}
+    learners = {k: v for k, v in learners.items() if v is not None}
+    if proposed is not None and learners:
+        best_name, best = max(learners.items(), key=lambda item: item[1]["mean"])
+        gap = proposed["mean"] - best["mean"]
+        disjoint = proposed["mean_low"] > best["mean_high"]
+        steps_p = cells.get("proposed", base_cell, "proposed", "steps_to_90")
+        steps_b = cells.get(best_name, base_cell, own_setting[best_name], "steps_to_90")
+        faster = (steps_p is not None and steps_b is not None and steps_p["mean"] <= 0.8 * steps_b["mean"]
+                  and steps_p["mean_high"] < steps_b["mean_low"])
+        steps_text = (f"; steps to 90 %: {_interval(steps_p)} vs {_interval(steps_b)}"
+                      if steps_p is not None and steps_b is not None else "; steps to 90 %: not reached by every learner")
+        row("1. Proposed vs best message-free learner", ">= 10 points, or <= 0.8x steps to 90 %, disjoint 95 % CIs",
+            f"Proposed {_interval(proposed)} vs {best_name} {_interval(best)}: {gap:+.2f} points{steps_text}",
+            (gap >= 10 and disjoint) or faster)
+    # 2. Full comm as an upper bound (and the in-range variant beside it)
+    for condition in ("full_comm", "full_comm_in_range"):
+        full = cells.get("proposed", base_cell, condition)
+        if proposed is not None and full is not None:
+            row(f"2. {condition} vs Proposed", ">= Proposed - 1.5 points",
+                f"{_interval(full)} vs {_interval(proposed)}: {full['mean'] - proposed['mean']:+.2f}",
+                bool(full["mean"] >= proposed["mean"] - 1.5))
+    # 3. Bursty outages: Proposed vs No predictor and No memory
+    for cell, length in burst_cells.items():
+        base = cells.get("proposed", cell, "proposed")
+        for ablation in ("no_predictor", "no_memory"):
+            other = cells.get("proposed", cell, ablation)
+            if base is not None and other is not None:
+                row(f"3. mean outage {length:g} steps: Proposed vs {ablation}", ">= 5 points",
+                    f"{_interval(base)} vs {_interval(other)}: {base['mean'] - other['mean']:+.2f}",
+                    bool(base["mean"] - other["mean"] >= 5))
+    # 4. Flat robustness curve over p_f
+    sweep = {cell: cells.get("proposed", cell, "proposed") for cell in p_fail_cells}
+    sweep = {k: v for k, v in sweep.items() if v is not None}
+    if len(sweep) >= 2:
+        means = {k: v["mean"] for k, v in sweep.items()}
+        spread = max(means.values()) - min(means.values())
+        row("4. coverage across p_f", "max - min <= 3 points",
+            ", ".join(f"{k}: {v:.2f}" for k, v in means.items()) + f"; spread {spread:.2f}", bool(spread <= 3))
+    # 5. Collisions
+    collisions = cells.get("proposed", base_cell, "proposed", "collisions")
+    if collisions is not None:
+        row("5. collisions per episode (Proposed)", f"<= {PAPER_COLLISIONS} (the paper's)", _interval(collisions),
+            bool(collisions["mean"] <= PAPER_COLLISIONS))
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--sweep", required=True, help="a sweep output folder (with scores.csv and sweep.json)")
+    parser.add_argument("--base-cell", default="table1", help="the cell at the training config (Table I's conditions)")
+    parser.add_argument("--burst-cells", nargs="*", default=[], metavar="CELL=MEAN_OUTAGE_STEPS",
+                        help="cells with bursty outages, and their mean outage length")
+    parser.add_argument("--output", default=None, help="folder for claims.md/csv (default: the sweep folder)")
+    args = parser.parse_args()
+    sweep = Path(args.sweep)
+    if not (sweep / "scores.csv").exists():
+        parser.error(f"--sweep: no scores.csv in {sweep} (run the sweep, or write its report, first)")
+    spec = json.loads((sweep / "sweep.json").read_text())
+    scores = pd.read_csv(sweep / "scores.csv")
+    burst_cells = {}
+    for item in args.burst_cells:
+        name, _, length = item.partition("=")
+        burst_cells[name] = float(length)
+    p_fail_cells = [
+        s["name"] for s in spec["eval_sets"] if set(s["overrides"]) == {"p_fail"} and s["overrides"]["p_fail"] <= 0.5
+    ]
+    rows = check_claims(scores, args.base_cell, burst_cells, p_fail_cells)
+    table = pd.DataFrame(rows)
+    output = Path(args.output) if args.output else sweep
+    output.mkdir(parents=True, exist_ok=True)
+    table.to_csv(output / "claims.csv", index=False)
+    seeds = scores.groupby("variant")["train_seed"].nunique().to_dict()
+    header = (f"Claims on sweep `{sweep}` (preset `{spec['preset']}`, overrides {spec['overrides']}; training seeds "
+              f"per variant: {seeds}). Means across training seeds with 95 % stratified-bootstrap intervals.\n\n")
+    markdown = header + to_markdown(table) + "\n"
+    (output / "claims.md").write_text(markdown)
+    print(markdown)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,75 @@
+"""examples/paper_claims.py on synthetic sweep scores with known verdicts."""
+
+import importlib.util
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+spec = importlib.util.spec_from_file_location("paper_claims", ROOT / "examples" / "paper_claims.py")
+paper_claims = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(paper_claims)
+
+
+def synthetic_scores(proposed=90.0, no_comm=75.0, full_comm=91.0, no_predictor=80.0, collisions=5.0) -> pd.DataFrame:
+    rows = []
+    for seed in range(3):
+        jitter = seed - 1.0  # -1, 0, 1: a narrow interval around each mean
+
+        def add(variant, eval_set, condition, coverage, steps=40.0, seed=seed, jitter=jitter):
+            rows.append(dict(variant=variant, train_seed=seed, trial_id=f"{variant}-seed{seed}", eval_set=eval_set,
+                             condition=condition, p_fail=0.3, coverage=coverage + jitter, collisions=collisions,
+                             steps_to_90=steps, reached_90=50.0))
+
+        add("proposed", "table1", "proposed", proposed)
+        add("proposed", "table1", "full_comm", full_comm)
+        add("proposed", "table1", "no_predictor", no_predictor)
+        add("proposed", "table1", "no_memory", proposed - 1.0)
+        add("no_comm", "table1", "no_comm", no_comm)
+        add("independent", "table1", "proposed", no_comm - 5.0)
+        for p, offset in (("p_fail=0", 0.0), ("p_fail=0.5", -2.0)):
+            add("proposed", p, "proposed", proposed + offset)
+    return pd.DataFrame(rows)
+
+
+def verdicts(rows):
+    return {row["claim"]: row["met"] for row in rows}
+
+
+def test_claims_on_known_scores():
+    rows = paper_claims.check_claims(synthetic_scores(), "table1", {"table1": 10}, ["p_fail=0", "p_fail=0.5"])
+    got = verdicts(rows)
+    assert got["1. Proposed vs best message-free learner"] == "yes"  # 15 points, disjoint intervals
+    assert got["2. full_comm vs Proposed"] == "yes"
+    assert got["3. mean outage 10 steps: Proposed vs no_predictor"] == "yes"  # 10 points
+    assert got["3. mean outage 10 steps: Proposed vs no_memory"] == "no"  # 1 point
+    assert got["4. coverage across p_f"] == "yes"  # spread 2
+    assert got["5. collisions per episode (Proposed)"] == "yes"
+    assert "no_comm" in rows[0]["measured"]  # the stronger message-free learner is named
+
+
+def test_claims_that_fail_are_reported_as_failed():
+    scores = synthetic_scores(proposed=80.0, no_comm=75.0, full_comm=70.0, collisions=20.0)
+    got = verdicts(paper_claims.check_claims(scores, "table1", {}, ["p_fail=0", "p_fail=0.5"]))
+    assert got["1. Proposed vs best message-free learner"] == "no"  # 5 points only
+    assert got["2. full_comm vs Proposed"] == "no"
+    assert got["5. collisions per episode (Proposed)"] == "no"
+
+
+def test_script_writes_claims_beside_the_sweep(tmp_path):
+    synthetic_scores().to_csv(tmp_path / "scores.csv", index=False)
+    eval_sets = [{"name": "table1", "overrides": {}, "conditions": None},
+                 {"name": "p_fail=0", "overrides": {"p_fail": 0.0}, "conditions": ["proposed"]},
+                 {"name": "p_fail=0.5", "overrides": {"p_fail": 0.5}, "conditions": ["proposed"]}]
+    (tmp_path / "sweep.json").write_text(json.dumps({"preset": "smoke", "overrides": {}, "eval_sets": eval_sets}))
+    result = subprocess.run(
+        [sys.executable, "examples/paper_claims.py", "--sweep", str(tmp_path), "--burst-cells", "table1=10"],
+        cwd=ROOT, capture_output=True, text=True, timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    claims = pd.read_csv(tmp_path / "claims.csv")
+    assert len(claims) == 6 and set(claims["met"]) == {"yes", "no"}  # no full_comm_in_range cell here
+    assert "spread 2.00" in (tmp_path / "claims.md").read_text()

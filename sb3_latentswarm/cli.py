@@ -317,6 +317,7 @@ def command_sweep(args: argparse.Namespace) -> int:
             output=args.output,
             resume=args.resume,
             verbose=args.verbose,
+            only=args.only,
         )
     except RuntimeError as error:  # failed trials: the finished ones are reported, --resume retries the rest
         print(f"sb3-latentswarm sweep: {error}", file=sys.stderr)
@@ -434,6 +435,10 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--cpus-per-trial", type=float, default=1.0, help="CPUs per trial (and its torch threads; default 1)")
     sweep.add_argument("--gpus-per-trial", type=float, default=0.0, help="GPUs per trial (default 0: train on the CPU)")
     sweep.add_argument("--output", default=None, help="result folder (default runs/sweeps/PRESET)")
+    sweep.add_argument(
+        "--only", nargs="+", metavar="TRIAL_ID", default=None,
+        help="run only these trials (e.g. proposed-seed2); the others stay pending for a later --resume",
+    )
     sweep.add_argument("--resume", action="store_true", help="continue the sweep in --output; finished trials are kept")
     sweep.add_argument("--verbose", type=int, default=1, help="Ray Tune console: 0 silent, 1 status table, 2 trial results")
     sweep.set_defaults(func=command_sweep, threads=1)

@@ -115,6 +115,7 @@ def test_plan_crosses_variants_seeds_and_grid_points():
     [
         (["--variant", "mappo"], "invalid choice"),
         (["--seeds", "0"], "--seeds must be an int >= 1, got 0"),
+        (["--only", "proposed-seed7"], "--only: unknown trial id(s) ['proposed-seed7']"),
         (["--grid", "warp_speed=1,2"], "--grid: unknown setting"),
         (["--grid", "p_fail=0.1,2.0"], "p_fail"),
         (["--eval-set", "bad=warp_speed=3"], "unknown setting 'warp_speed'"),
@@ -219,3 +220,15 @@ def test_sweep_smoke_end_to_end_and_resume(tmp_path):
     assert again.returncode == 2 and "pass --resume" in again.stderr
     other = run_sweep_command(*args, "--resume")
     assert other.returncode == 2 and "differs" in other.stderr
+
+
+def test_only_selects_among_the_unfinished_trials_in_plan_order():
+    from sb3_latentswarm.experiments.sweep import select_trials
+
+    trials = [{"trial_id": t} for t in ("proposed-seed0", "no_comm-seed0", "independent-seed0", "proposed-seed1")]
+    ids = lambda selected: [t["trial_id"] for t in selected]  # noqa: E731
+    assert ids(select_trials(trials, {"proposed-seed0"})) == ["no_comm-seed0", "independent-seed0", "proposed-seed1"]
+    only = ["proposed-seed1", "proposed-seed0", "no_comm-seed0"]
+    assert ids(select_trials(trials, {"proposed-seed0"}, only)) == ["no_comm-seed0", "proposed-seed1"]
+    with pytest.raises(ValueError, match="unknown trial id"):
+        select_trials(trials, set(), ["proposed-seed9"])

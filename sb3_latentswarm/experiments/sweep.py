@@ -171,6 +171,16 @@ def finished_trials(output: Path) -> set[str]:
     return {path.name for path in finished_trial_dirs(output)}
 
 
+def select_trials(trials: list[dict[str, Any]], done: set[str], only: Sequence[str] | None = None) -> list[dict[str, Any]]:
+    """The trials still to run, in plan order: not finished, and among ``only`` when it is given."""
+    if only is not None:
+        ids = [trial["trial_id"] for trial in trials]
+        unknown = [trial_id for trial_id in only if trial_id not in ids]
+        if unknown or not only:
+            raise ValueError(f"--only: unknown trial id(s) {unknown or list(only)}; this sweep's trials are {ids}")
+    return [t for t in trials if t["trial_id"] not in done and (only is None or t["trial_id"] in only)]
+
+
 def _check_output(output: Path, spec: dict[str, Any], resume: bool) -> None:
     saved_path = output / "sweep.json"
     if not saved_path.exists():
@@ -271,6 +281,7 @@ def run_sweep(
     output: str | Path | None = None,
     resume: bool = False,
     verbose: int = 1,
+    only: Sequence[str] | None = None,
 ) -> Path:
     """Train ``seeds`` training seeds of every variant at every grid point on Ray Tune, evaluate each trained model on
     held-out seeds, and write the per-run scores and the across-seed intervals into ``output``.
@@ -293,6 +304,8 @@ def run_sweep(
     :param output: result folder (default ``runs/sweeps/<preset>``)
     :param resume: continue the sweep in ``output``: finished trials are kept, not retrained
     :param verbose: Ray Tune's console verbosity (0 silent, 1 status table, 2 also trial results)
+    :param only: run only these trial ids (e.g. ``proposed-seed2``); the others stay pending for a later ``resume``.
+        Lets the cheap trials go first, or splits one sweep over several machines sharing ``output``
     :return: ``output``
     :raises ValueError: on bad arguments or an unreachable ``address``, before anything is trained
     :raises RuntimeError: when trials failed (the finished ones are aggregated; ``resume=True`` reruns the rest)
@@ -314,7 +327,7 @@ def run_sweep(
         check_address(address)
     trials = plan_trials(spec, commit)
     done = finished_trials(output)
-    pending = [trial for trial in trials if trial["trial_id"] not in done]
+    pending = select_trials(trials, done, only)
     print(f"Sweep on preset '{preset}': {len(trials)} trials, {len(trials) - len(pending)} already finished")
     failed: list[str] = []
     if pending:

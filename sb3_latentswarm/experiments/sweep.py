@@ -328,7 +328,7 @@ def run_sweep(
     trials = plan_trials(spec, commit)
     done = finished_trials(output)
     pending = select_trials(trials, done, only)
-    print(f"Sweep on preset '{preset}': {len(trials)} trials, {len(trials) - len(pending)} already finished")
+    print(f"Sweep on preset {preset!r}: {len(trials)} trials, {len(done)} already finished, {len(pending)} to run now")
     failed: list[str] = []
     if pending:
         import ray

@@ -1,0 +1,82 @@
+"""Atomic result files: write a temporary file in the target's folder, then ``os.replace`` it into place.
+
+A failure while writing (a full disk, a size limit, a Ctrl-C) leaves the earlier file untouched and no partial file
+under the final name. Every result this package writes (models, checkpoints, tables, JSON records, plots) goes
+through :func:`atomic_path`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+__all__ = ["atomic_path", "write_text", "write_bytes", "write_json", "probe_writable"]
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success it is moved onto ``path`` with ``os.replace``.
+
+    The temporary name keeps ``path``'s suffix (libraries that pick a format from the suffix still work). On any
+    exception the temporary file is removed and ``path`` is left as it was.
+    """
+    final = Path(path)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{final.stem}.", suffix=f".tmp{final.suffix}", dir=final.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        yield tmp
+        with open(tmp, "rb+") as handle:
+            os.fsync(handle.fileno())
+        os.replace(tmp, final)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+
+
+def write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+
+
+def write_text(path: str | os.PathLike[str], text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically."""
+    write_bytes(path, text.encode("utf-8"))
+
+
+def write_json(path: str | os.PathLike[str], obj: Any) -> None:
+    """Write ``obj`` as indented JSON to ``path`` atomically."""
+    write_text(path, json.dumps(obj, indent=2, sort_keys=True, default=str) + "\n")
+
+
+def probe_writable(folder: str | os.PathLike[str], room_bytes: int = 0) -> None:
+    """Raise ``ValueError`` unless ``folder`` (created if missing) accepts a file of ``room_bytes`` bytes.
+
+    Called before training or evaluation starts, so an unwritable or full output folder fails in the first second,
+    not after hours of work.
+    """
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"output folder {folder} is an existing file, not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".write-probe.", dir=folder)
+        try:
+            with os.fdopen(fd, "wb") as handle:
+                if room_bytes > 0:
+                    handle.write(b"\0" * room_bytes)
+                    handle.flush()
+                    os.fsync(handle.fileno())
+        finally:
+            os.unlink(probe)
+    except OSError as error:
+        raise ValueError(
+            f"output folder {folder} is not writable or has no room for {room_bytes} bytes: {error.strerror or error}"
+        ) from None

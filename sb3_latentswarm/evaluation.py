@@ -10,8 +10,8 @@ Conditions (Sec. IV, "To assess each proposed component's contribution, we compa
 ``no_memory``     channel links; the memory state rho_t is zeroed before it is used in any update
 ================  =========================================================================================
 
-One more condition, an extension (:data:`EXTRA_CONDITIONS`, not in Table I and not in the default set of
-:func:`evaluate_conditions`; pass it in ``conditions`` to report it beside ``full_comm``):
+More conditions, extensions (:data:`EXTRA_CONDITIONS`, not in Table I and not in the default set of
+:func:`evaluate_conditions`; pass them in ``conditions``):
 
 ======================  ===================================================================================
 ``full_comm_in_range``  every link up whose 3D length is within the channel's usable range, every longer link
@@ -19,7 +19,13 @@ One more condition, an extension (:data:`EXTRA_CONDITIONS`, not in Table I and n
                         set by ``SwarmConfig.link_range_probability``): Full comm without delivering messages from
                         peers so far away that the trained policy never received one (with distance-limited links
                         "a message arrived" is also a proximity cue)
+``hold_last``           channel links; during dropout the last message actually received in the episode (zero
+                        before the first) replaces mhat_t: the baseline a predictor must beat
+``own_message``         channel links; during dropout the agent's own message z_{t-1}^i replaces mhat_t
 ======================  ===================================================================================
+
+The conditions that do not name a substitute keep the policy's own ``message_substitute`` (the predictor for a
+model trained as the paper does; zeros for a ``zero_substitute`` learner, the held message for a ``hold_last`` one).
 
 Execution is decentralized: every UAV acts from its own ``local_obs``, ``proprio`` and the messages that reached it
 (``link_row``); the global keys of the observation are read only for the ``map_error`` diagnostic. Episodes run in
@@ -70,7 +76,7 @@ __all__ = [
 
 CONDITIONS = ("proposed", "full_comm", "no_comm", "no_predictor", "no_memory")
 """The five test-time conditions of Sec. IV (Table I, and the default of :func:`evaluate_conditions`)."""
-EXTRA_CONDITIONS = ("full_comm_in_range",)
+EXTRA_CONDITIONS = ("full_comm_in_range", "hold_last", "own_message")
 """Conditions beyond the paper (see the module docstring); accepted wherever a condition is."""
 CONDITION_LABELS = {
     "full_comm": "Full comm (UB)",
@@ -79,6 +85,8 @@ CONDITION_LABELS = {
     "no_memory": "No memory",
     "no_comm": "No comm (LB)",
     "no_predictor": "No predictor",
+    "hold_last": "Hold last message",
+    "own_message": "Own message",
 }
 """Row labels of Table I."""
 PAPER_P_FAILS = (0.0, 0.05, 0.15, 0.3, 0.5)
@@ -91,15 +99,20 @@ _LINK_MODES = {
     "no_comm": "none",
     "no_predictor": "channel",
     "no_memory": "channel",
+    "hold_last": "channel",
+    "own_message": "channel",
 }
-# (no_predictor, no_memory) of the latent-swarm policy under each condition
-_SWITCHES = {
-    "proposed": (False, False),
-    "full_comm": (False, False),
-    "full_comm_in_range": (False, False),
-    "no_comm": (False, False),
-    "no_predictor": (True, False),
-    "no_memory": (False, True),
+# (message_substitute, no_memory) of the latent-swarm policy under each condition; None keeps the policy's own
+# substitute (see LatentSwarmPolicy.message_substitute)
+_SWITCHES: dict[str, tuple[str | None, bool]] = {
+    "proposed": (None, False),
+    "full_comm": (None, False),
+    "full_comm_in_range": (None, False),
+    "no_comm": (None, False),
+    "no_predictor": ("zero", False),
+    "no_memory": (None, True),
+    "hold_last": ("hold_last", False),
+    "own_message": ("own_message", False),
 }
 
 EPISODE_COLUMNS = (
@@ -149,16 +162,19 @@ def condition_config(config: SwarmConfig, condition: str, p_fail: float) -> Swar
 def policy_switches(policy: LatentSwarmPolicy, condition: str) -> Iterator[LatentSwarmPolicy]:
     """Set the ablation switches of ``condition`` on ``policy`` (and eval mode); restore them on exit.
 
-    Every condition defines both switches, so ``proposed`` also turns off a switch left on by the caller.
+    Every condition sets ``no_memory``, so ``proposed`` also turns off a memory ablation left on by the caller; the
+    substitute is set only by the conditions that name one (``no_predictor``, ``hold_last``, ``own_message``).
     """
     _check_condition(condition)
-    saved = (policy.no_predictor, policy.no_memory, policy.training)
-    policy.no_predictor, policy.no_memory = _SWITCHES[condition]
+    saved = (policy.message_substitute, policy.no_memory, policy.training)
+    substitute, policy.no_memory = _SWITCHES[condition]
+    if substitute is not None:
+        policy.message_substitute = substitute
     policy.set_training_mode(False)
     try:
         yield policy
     finally:
-        policy.no_predictor, policy.no_memory = saved[0], saved[1]
+        policy.message_substitute, policy.no_memory = saved[0], saved[1]
         policy.set_training_mode(saved[2])
 
 
@@ -236,10 +252,8 @@ class _LatentActor:
         with th.no_grad():
             tensors = {key: th.as_tensor(obs[key], device=device) for key in ACTOR_OBS_KEYS}
             starts = th.as_tensor(episode_starts, dtype=th.float32, device=device)
-            keep = (1.0 - starts).unsqueeze(-1)
-            # z_{t-1}^j = [mu_{t-1}^j; tau_{t-1}^j], zero at an episode start as in latent_step
-            sent = th.cat([self.state.map_state, self.state.task_state], dim=-1) * keep  # (B, d_msg)
             step = policy.latent_step(tensors, self.state, starts)
+            sent = step.sent_message  # z_{t-1}^j = [mu_{t-1}^j; tau_{t-1}^j], zero at an episode start, (B, d_msg)
             self.state = step.state
             distribution = policy.action_distribution(step.state.task_state).distribution
             actions = distribution.mean
@@ -250,12 +264,12 @@ class _LatentActor:
             target = th.as_tensor(obs["global_map"], device=device).float().flatten(1)
             map_error = ((policy.decode_map(step.state.map_state) - target) ** 2).mean(-1)
 
-            # pred_error: the substitute used during dropout (mhat_t, or 0 with no_predictor) against the message
-            # a full link set would have delivered, the mean of z_{t-1}^j over all peers j != i
+            # pred_error: the substitute used during dropout (mbar_t there: mhat_t, zeros, the held or the own
+            # message) against the message a full link set would have delivered, the mean of z_{t-1}^j over j != i
             if n > 1:
                 per_swarm = sent.view(-1, n, sent.shape[-1])
                 full_message = ((per_swarm.sum(1, keepdim=True) - per_swarm) / (n - 1)).view_as(sent)
-                substitute = th.zeros_like(full_message) if policy.no_predictor else step.predicted_message
+                substitute = step.state.prev_message
                 pred_error = ((substitute - full_message) ** 2).mean(-1)
                 pred_error = th.where(step.has_message, th.full_like(pred_error, math.nan), pred_error)
             else:

@@ -99,6 +99,10 @@ MAPPO_TRAINING: dict[str, Any] = dict(normalize_value=True, value_loss="huber", 
 docs/results/training_options_fast/): the critic's gradient no longer scales down the actor's and the latent losses'."""
 BOUNDED_STD: dict[str, Any] = dict(log_std_bounds=(-5.0, 0.0), log_std_init=-0.5)
 """Policy std at most 1 (half the action box), initially 0.61: most sampled actions fall inside the box."""
+ACTOR: dict[str, Any] = dict(action_distribution="gaussian", log_std_mapping="tanh")
+"""The actor of every preset, named so that ``--set action_distribution=squashed_gaussian`` (or
+``log_std_mapping=clamp``, the bound of the models trained before it existed) reads as a change of it: the paper's
+Gaussian, its log std bounded smoothly (``docs/algorithm.md``, "The actor")."""
 
 
 def _algo_kwargs(
@@ -114,6 +118,7 @@ def _algo_kwargs(
             decoder_hidden=hidden,
             critic_hidden=hidden,
             actor_hidden=min(hidden, 64),
+            **ACTOR,
             **(BOUNDED_STD if mappo else {}),
         ),
     )

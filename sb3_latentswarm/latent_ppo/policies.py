@@ -65,11 +65,11 @@ def smooth_log_std(raw: th.Tensor, low: float, high: float) -> th.Tensor:
 
     Computed as ``high - (high - low) * sigmoid(-2 raw)`` for raw >= 0 and ``low + (high - low) * sigmoid(2 raw)``
     below (the same function, since (tanh(x) + 1) / 2 = sigmoid(2x)): ``tanh(raw)`` rounds to exactly +-1 in float32
-    once |raw| > 9, and its gradient with it, while these forms keep a non-zero gradient up to |raw| of about 40
+    once abs(raw) > 9, and its gradient with it, while these forms keep a non-zero gradient up to abs(raw) of about 40
     (where it reaches float32's smallest normal number).
 
     :param raw: the std head's output, any shape
-    :return: the log std, same shape, strictly inside (low, high) for |raw| < 9
+    :return: the log std, same shape, strictly inside (low, high) for abs(raw) < 9
     """
     span = high - low
     return th.where(raw >= 0, high - span * th.sigmoid(-2.0 * raw), low + span * th.sigmoid(2.0 * raw))
@@ -85,8 +85,8 @@ class TanhSquashedGaussianDistribution(SquashedDiagGaussianDistribution):
     u ~ N(mean, std^2)) with the exact change of variables in :meth:`log_prob`.
 
     SB3 subtracts ``log(1 - a^2 + 1e-6)``: the 1e-6 shifts the log-probability of a saturated action by up to 1.6
-    nats per dimension, and it flattens the sampled entropy estimate once |u| passes about 7, so that estimate stops
-    pulling the actor back from saturation. Here log |da/du| = log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u)),
+    nats per dimension, and it flattens the sampled entropy estimate once abs(u) passes about 7, so that estimate stops
+    pulling the actor back from saturation. Here log(da/du) = log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u)),
     exact and finite for every u. ``entropy()`` stays ``None`` (no closed form): see
     :meth:`LatentSwarmPolicy.action_entropy`.
     """

@@ -318,3 +318,19 @@ def test_presets_name_their_actor_and_set_reaches_the_policy(tmp_path):
     assert main(["train", "--preset", "smoke", "--no-progress", *args]) == 0
     trained = LatentSwarmPPO.load(tmp_path / "model.zip", device="cpu")
     assert trained.policy.action_distribution_name == "squashed_gaussian" and trained.policy.log_std_mapping == "clamp"
+
+
+# ---------------------------------------------------------------------------------------------- the independent baseline
+def test_independent_baseline_trains_with_the_presets_ppo_settings():
+    from sb3_latentswarm.baselines import train_independent_ppo
+
+    coordination = get_preset("coordination")
+    kwargs = coordination.independent_ppo_kwargs()
+    assert (kwargs["n_steps"], kwargs["batch_size"], kwargs["n_epochs"]) == (160, 1920, 5)
+    assert kwargs["learning_rate"] == 3e-4 and kwargs["policy_kwargs"] == {"log_std_init": -0.5}
+    smoke = get_preset("smoke")
+    env = make_vec_env(smoke.n_envs, config=smoke.config, seed=0)
+    model = train_independent_ppo(env, 1, device="cpu", **smoke.independent_ppo_kwargs()).model
+    assert (model.n_steps, model.batch_size, model.n_epochs) == (20, 30, 1)
+    assert model.policy.lstm_actor.hidden_size == 64  # the LSTM sizes stay the baseline's own
+    th.testing.assert_close(model.policy.log_std.detach(), th.full((4,), -0.5), rtol=0.0, atol=1e-3)  # after one update

@@ -201,7 +201,9 @@ def train_and_evaluate(
     progress = TuneProgress(report)
     start = time.perf_counter()
     if variant == "independent":
-        model = train_independent_ppo(env, preset.total_timesteps, seed=train_seed, device=device, callback=progress)
+        model = train_independent_ppo(
+            env, preset.total_timesteps, seed=train_seed, device=device, callback=progress, **preset.independent_ppo_kwargs()
+        )
         trained_steps = model.model.num_timesteps
     else:
         model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=train_seed, device=device, **preset.algo_kwargs)
@@ -231,7 +233,7 @@ def train_and_evaluate(
         "node": platform.node(),
         "train_config": train_config.to_dict(),
         "eval_config": preset.config.to_dict(),
-        "algo_kwargs": preset.algo_kwargs if variant != "independent" else "train_independent_ppo defaults",
+        "algo_kwargs": preset.algo_kwargs if variant != "independent" else preset.independent_ppo_kwargs(),
         "n_envs": preset.n_envs,
         "training_env_seeds": [env_seed, env_seed + preset.n_envs - 1],
         "eval_env_seeds": [spec["eval_seed"], spec["eval_seed"] + spec["eval_episodes"] - 1],

@@ -255,10 +255,8 @@ class _LatentActor:
             step = policy.latent_step(tensors, self.state, starts)
             sent = step.sent_message  # z_{t-1}^j = [mu_{t-1}^j; tau_{t-1}^j], zero at an episode start, (B, d_msg)
             self.state = step.state
-            distribution = policy.action_distribution(step.state.task_state).distribution
-            actions = distribution.mean
-            if noise is not None:  # a Gaussian sample mean + std * eps with eps from the episode's own generator
-                actions = actions + distribution.stddev * th.as_tensor(noise, device=device)
+            # the mean action, or a sample with eps from the episode's own generator
+            actions = policy.actions_from_noise(step.state.task_state, noise)
 
             # map_error: per-cell squared error of D(mu_t^i) against M_hat_t (the target of Eq. (3))
             target = th.as_tensor(obs["global_map"], device=device).float().flatten(1)

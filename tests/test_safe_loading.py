@@ -116,8 +116,13 @@ def test_saved_files_hold_no_pickle_no_machine_path_and_round_trip(tmp_path):
     model.learning_rate = lambda progress: 1e-3 * progress
     with pytest.warns(UserWarning, match="learning_rate is a function"):
         model.save(tmp_path / "lambda.zip")
-    current = 1e-3 * model._current_progress_remaining
-    assert LatentSwarmPPO.load(tmp_path / "lambda.zip").learning_rate == pytest.approx(current)
+    # here training has ended (progress_remaining 0): a constant 0 would not load, so the initial value is kept
+    assert model._current_progress_remaining <= 0
+    assert LatentSwarmPPO.load(tmp_path / "lambda.zip").learning_rate == pytest.approx(1e-3)
+    model._current_progress_remaining = 0.5
+    with pytest.warns(UserWarning, match="saved as its current value 0.0005"):
+        model.save(tmp_path / "lambda.zip")
+    assert LatentSwarmPPO.load(tmp_path / "lambda.zip").learning_rate == pytest.approx(5e-4)
 
 
 def test_load_overrides_pass_the_constructor_checks(saved):

@@ -209,7 +209,12 @@ def _holds_other_tables(folder: Path, record: dict[str, Any]) -> bool:
     path = folder / EVALUATION_RECORD
     if not path.exists():
         return True
-    recorded = json.loads(path.read_text())
+    try:
+        recorded = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ValueError(f"{path} cannot be read as JSON ({error}); remove it or pass another --output") from None
+    if not isinstance(recorded, dict):
+        raise ValueError(f"{path} must hold a JSON object (an evaluation record); remove it or pass another --output")
     return any(recorded.get(key) != value for key, value in record.items() if key != "sb3_latentswarm")
 
 

@@ -40,6 +40,7 @@ from sb3_latentswarm.common.schedules import paper_learning_rate
 from sb3_latentswarm.common.serialization import UnsafeModelFileError, load_plain, read_data, save_plain
 from sb3_latentswarm.common.type_aliases import LatentState
 from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.envs.vec_env import check_vec_normalize
 from sb3_latentswarm.latent_ppo.policies import CRITIC_KEYS, LatentSwarmPolicy, SequenceEvaluation, check_observation_space
 from sb3_latentswarm.version import __version__
 
@@ -356,6 +357,7 @@ class LatentSwarmPPO(RecurrentPPO):
     @staticmethod
     def _check_swarm_env(env: VecEnv) -> int:
         """Validate a swarm VecEnv and return its number of agents per swarm."""
+        check_vec_normalize(env)
         check_observation_space(env.observation_space)
         try:
             n_agents = int(env.get_attr("n_agents", indices=0)[0]) if not hasattr(env, "n_agents") else int(env.n_agents)
@@ -642,11 +644,13 @@ class LatentSwarmPPO(RecurrentPPO):
         policy_loss = -th.min(policy_loss_1, policy_loss_2).mean()
 
         # L_VF on the critic's scale: the returns R_t (normalized by ValueNorm when it is on), optionally clipped
-        # around the old value, squared error (the paper's) or Huber (MAPPO's)
+        # around the old value, squared error (the paper's) or Huber (MAPPO's). With ValueNorm the old values go back
+        # to the critic's raw output of the rollout (the statistics they were denormalized with), so the clip compares
+        # the critic with itself in one frame, as MAPPO does: nothing is clipped before the first gradient step.
         values, returns, old_values = evaluation.values, rollout_data.returns, rollout_data.old_values
         normalizer = self.policy.value_normalizer
         if normalizer is not None:
-            returns, old_values = normalizer.normalize(returns), normalizer.normalize(old_values)
+            returns, old_values = normalizer.normalize(returns), normalizer.normalize(old_values, frame="rollout")
         if clip_range_vf is not None:
             values = old_values + th.clamp(values - old_values, -clip_range_vf, clip_range_vf)
         if self.value_loss == "huber":
@@ -696,6 +700,7 @@ class LatentSwarmPPO(RecurrentPPO):
             self.policy.value_normalizer.update(th.as_tensor(self.rollout_buffer.returns, device=self.device))
 
         weights = self._loss_weights()
+        update = self.num_timesteps // (self.n_steps * self.n_envs)  # this update's number, counting rollouts from 1
         parameter_groups = self._parameter_groups()
         history: dict[str, list[float]] = {term: [] for term in LOSS_TERMS}
         clip_fractions, approx_kl_divs, group_norms = [], [], []
@@ -718,6 +723,12 @@ class LatentSwarmPPO(RecurrentPPO):
                 approx_kl_divs.append(approx_kl_div)
                 for term in LOSS_TERMS:
                     history[term].append(losses[term].item())
+                    if not math.isfinite(history[term][-1]):
+                        raise NonFiniteLossError(
+                            f"the {term} loss is {history[term][-1]} in update {update} "
+                            f"(epoch {epoch + 1}, minibatch {len(history[term])}); lower learning_rate (now "
+                            f"{self.policy.optimizer.param_groups[0]['lr']:g}) or check the rewards and observations"
+                        )
                 clip_fractions.append(th.mean((th.abs(ratio - 1) > clip_range).float()).item())
 
                 if self.target_kl is not None and approx_kl_div > 1.5 * self.target_kl:
@@ -734,6 +745,12 @@ class LatentSwarmPPO(RecurrentPPO):
             self._n_updates += 1
             if not continue_training:
                 break
+        bad = [name for name, p in self.policy.named_parameters() if not bool(th.isfinite(p).all())]
+        if bad:
+            raise NonFiniteLossError(
+                f"parameters {bad[:3]} became NaN or infinite in update {update} (the losses "
+                f"were finite: the step was too large); lower learning_rate (now {self.policy.optimizer.param_groups[0]['lr']:g})"
+            )
 
         explained_var = explained_variance(self.rollout_buffer.values.flatten(), self.rollout_buffer.returns.flatten())
         self.logger.record("train/entropy_loss", np.mean(history["entropy"]))

@@ -348,6 +348,12 @@ STATE_ATTRIBUTES: dict[str, tuple[str, Any]] = {
 decoded. Constructor arguments not listed here are accepted under their own name and checked by the constructor."""
 
 
+def saved_attributes(algorithm: type) -> set[str]:
+    """The attribute names :func:`save_plain` writes and :func:`load_plain` accepts: :data:`STATE_ATTRIBUTES` and the
+    constructor arguments of ``algorithm``."""
+    return set(STATE_ATTRIBUTES) | set(constructor_arguments(algorithm))
+
+
 def check_attributes(algorithm: type, data: dict[str, Any], path: Any) -> None:
     """Refuse an attribute :func:`save_plain` does not write, or one of the wrong type, naming it.
 
@@ -356,11 +362,11 @@ def check_attributes(algorithm: type, data: dict[str, Any], path: Any) -> None:
 
     :raise ValueError: naming the file and the entry
     """
-    arguments = set(constructor_arguments(algorithm))
+    allowed = saved_attributes(algorithm)
     for name, value in data.items():
         expected = STATE_ATTRIBUTES.get(name)
         if expected is None:
-            if name in arguments:
+            if name in allowed:
                 continue
             raise ValueError(
                 f"{path}: data entry {name!r} is not an attribute that a saved {algorithm.__name__} holds; refused "
@@ -523,7 +529,8 @@ def read_data(path: str | pathlib.Path | io.BufferedIOBase) -> tuple[dict[str, A
 def save_plain(model: Any, path: str | pathlib.Path | io.BufferedIOBase, exclude=None, include=None) -> None:
     """Save ``model`` (an SB3 algorithm) in SB3's zip layout with a plain-data ``data`` entry.
 
-    What SB3's ``save`` would store, less :data:`RUN_STATE`; :data:`MACHINE_SPECIFIC` attributes are stored as ``None``.
+    What SB3's ``save`` would store, less :data:`RUN_STATE`, restricted to :func:`saved_attributes` (other attributes
+    set on the model are not saved); :data:`MACHINE_SPECIFIC` attributes are stored as ``None``.
     A schedule given as a plain function cannot be stored: it is saved as its current value, with a warning.
     """
     algorithm = type(model)
@@ -531,9 +538,10 @@ def save_plain(model: Any, path: str | pathlib.Path | io.BufferedIOBase, exclude
     excluded -= set(include or ())
     state_dicts, torch_variables = model._get_torch_save_params()
     excluded |= {name.split(".")[0] for name in state_dicts + torch_variables}
+    saved = saved_attributes(algorithm)
     data: dict[str, Any] = {"plain_format": PLAIN_FORMAT}
     for name, value in model.__dict__.items():
-        if name in excluded:
+        if name in excluded or name not in saved:
             continue
         if name in MACHINE_SPECIFIC:
             value = None

@@ -97,10 +97,9 @@ def _print_table(title: str, markdown: str) -> None:
 
 
 def command_train(args: argparse.Namespace) -> int:
+    from sb3_latentswarm.common.checks import check_int
     from sb3_latentswarm.envs import make_vec_env
     from sb3_latentswarm.latent_ppo import LatentSwarmPPO
-
-    from sb3_latentswarm.common.checks import check_int
     from sb3_latentswarm.latent_ppo.latent_ppo import validate_algorithm_kwargs
 
     preset = _preset_from_args(args, training=True)

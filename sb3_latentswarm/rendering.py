@@ -90,12 +90,13 @@ def run_episode(model, config: SwarmConfig, seed: int = 0, condition: str = "pro
     :return: (frames (T+1, H, W, 3) uint8, positions (T+1, N, 3) in metres, dropouts (T+1,) bool, final infos)
     :raise ValueError: for a model trained on another map or sensor range (:func:`check_model_fits`)
     """
-    frames, positions, dropouts, infos = [], [], [], {}
-    for _, frame, position, dropout, infos, _ in _episode(model, config, seed, condition, deterministic, lambda t: True):
+    frames, positions, dropouts, final_infos = [], [], [], {}
+    for _, frame, position, dropout, step_infos, _ in _episode(model, config, seed, condition, deterministic, lambda t: True):
         frames.append(frame)
         positions.append(position)
         dropouts.append(dropout)
-    return np.stack(frames), np.stack(positions), np.array(dropouts), infos
+        final_infos = step_infos
+    return np.stack(frames), np.stack(positions), np.array(dropouts), final_infos
 
 
 def _pixels(positions: np.ndarray, config: SwarmConfig, height: int) -> tuple[np.ndarray, np.ndarray]:
@@ -158,7 +159,7 @@ def render_episode(
     options = dict(duration=1000.0 / fps, loop=0) if gif else dict(fps=fps, macro_block_size=1)
     positions, dropouts = [], []
     with imageio.get_writer(output, mode="I", **options) as writer:
-        for t, frame, position, dropout, _, last in _episode(
+        for _, frame, position, dropout, _, _ in _episode(
             model, config, seed, condition, deterministic, lambda t: t % stride == 0
         ):
             positions.append(position)

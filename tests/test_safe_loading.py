@@ -166,7 +166,7 @@ def rewrite_entry(source: Path, target: Path, name: str, content: bytes) -> Path
 @pytest.mark.parametrize(
     "change, message",
     [
-        (lambda d: d.update(set_parameters={"__torch_class__": "Identity"}), "data entry 'set_parameters' is not an attribute"),
+        (lambda d: d.update(set_parameters={"__torch_class__": "Identity"}), "entry 'set_parameters' is not an attribute"),
         (lambda d: d.update(save={"__schedule__": "constant", "value": 0}), "data entry 'save' is not an attribute"),
         (lambda d: d.update(predict="x"), "data entry 'predict' is not an attribute"),
         (lambda d: d.update(_setup_model=1), "data entry '_setup_model' is not an attribute"),

@@ -392,7 +392,9 @@ def _check_policy_kwargs(value: Any, path: Any, name: str = "policy_kwargs") -> 
         for i, v in enumerate(value):
             _check_policy_kwargs(v, path, f"{name}[{i}]")
     elif _is_int(value) and abs(value) > MAX_POLICY_WIDTH:
-        raise ValueError(f"{path}: data entry {name} must be at most {MAX_POLICY_WIDTH} (the limit on network sizes), got {value}")
+        raise ValueError(
+            f"{path}: data entry {name} must be at most {MAX_POLICY_WIDTH} (the limit on network sizes), got {value}"
+        )
     elif isinstance(value, float) and not math.isfinite(value):
         raise ValueError(f"{path}: data entry {name} must be finite, got {value}")
 
@@ -460,7 +462,8 @@ def _json_depth(value: Any) -> int:
     depth, level = 0, [value]
     while level:
         depth += 1
-        level = [v for item in level if isinstance(item, (dict, list)) for v in (item.values() if isinstance(item, dict) else item)]
+        children = (item.values() if isinstance(item, dict) else item for item in level if isinstance(item, (dict, list)))
+        level = [value for items in children for value in items]
         if depth > MAX_DEPTH:
             break
     return depth
@@ -504,7 +507,7 @@ def read_data(path: str | pathlib.Path | io.BufferedIOBase) -> tuple[dict[str, A
                 )
             for name in TENSOR_ENTRIES:
                 if name in archive.namelist() and archive.getinfo(name).file_size > MAX_TENSOR_ENTRY_BYTES:
-                    raise ValueError(f"{path}: its {name!r} entry is larger than the limit of {MAX_TENSOR_ENTRY_BYTES:,} bytes")
+                    raise ValueError(f"{path}: its {name!r} entry is over the limit of {MAX_TENSOR_ENTRY_BYTES:,} bytes")
             content = archive.read("data")
     except zipfile.BadZipFile as error:
         raise ValueError(f"{path} is not a saved model (not a zip file)") from error

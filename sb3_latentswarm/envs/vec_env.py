@@ -57,8 +57,8 @@ from sb3_latentswarm.envs.batched_core import (
     SWARM_METHODS,
     SwarmBatch,
     agent_action_space,
-    check_actions,
     agent_observation_space,
+    check_actions,
 )
 from sb3_latentswarm.envs.swarm_recon import SwarmReconEnv, render_frame
 

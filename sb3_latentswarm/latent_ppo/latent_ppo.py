@@ -93,7 +93,8 @@ def check_save_format(data: dict[str, Any] | None, path: Any, formats: tuple[int
         raise ValueError(f"{path} was not saved by LatentSwarmPPO (no save_format); load it with the class that saved it")
     saved_format, saved_by = data["save_format"], data.get("saved_by_version", "unknown")
     if isinstance(saved_format, bool) or not isinstance(saved_format, int):
-        raise ValueError(f"{path}: data entry 'save_format' must be an int, got {type(saved_format).__name__} ({saved_format!r})")
+        kind = type(saved_format).__name__
+        raise ValueError(f"{path}: data entry 'save_format' must be an int, got {kind} ({saved_format!r})")
     if not isinstance(saved_by, str):
         raise ValueError(f"{path}: data entry 'saved_by_version' must be a str, got {type(saved_by).__name__}")
     if saved_format in formats:
@@ -506,12 +507,14 @@ class LatentSwarmPPO(RecurrentPPO):
             raise ValueError(f"{path}: the data entry has no 'n_agents'")
         link_dim = self.observation_space["link_row"].shape[-1]  # type: ignore[index]
         if link_dim != self.n_agents:
-            raise ValueError(f"{path}: data entry 'n_agents' is {self.n_agents} but the observation 'link_row' has length {link_dim}")
+            raise ValueError(
+                f"{path}: data entry 'n_agents' is {self.n_agents} but the observation 'link_row' has length {link_dim}"
+            )
         if self.n_envs % self.n_agents != 0:
             raise ValueError(f"{path}: data entry 'n_envs' ({self.n_envs}) is not a multiple of n_agents ({self.n_agents})")
         if self.swarm_config is not None and self.swarm_config.n_agents != self.n_agents:
             raise ValueError(
-                f"{path}: data entry 'swarm_config' has n_agents={self.swarm_config.n_agents} but 'n_agents' is {self.n_agents}"
+                f"{path}: data entry 'swarm_config' has n_agents={self.swarm_config.n_agents}, 'n_agents' is {self.n_agents}"
             )
 
     def save(self, path, exclude=None, include=None) -> None:  # type: ignore[override]
@@ -748,8 +751,8 @@ class LatentSwarmPPO(RecurrentPPO):
         bad = [name for name, p in self.policy.named_parameters() if not bool(th.isfinite(p).all())]
         if bad:
             raise NonFiniteLossError(
-                f"parameters {bad[:3]} became NaN or infinite in update {update} (the losses "
-                f"were finite: the step was too large); lower learning_rate (now {self.policy.optimizer.param_groups[0]['lr']:g})"
+                f"parameters {bad[:3]} became NaN or infinite in update {update} (the losses were finite: the step was "
+                f"too large); lower learning_rate (now {self.policy.optimizer.param_groups[0]['lr']:g})"
             )
 
         explained_var = explained_variance(self.rollout_buffer.values.flatten(), self.rollout_buffer.returns.flatten())

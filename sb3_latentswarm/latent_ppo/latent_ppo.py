@@ -415,6 +415,7 @@ class LatentSwarmPPO(RecurrentPPO):
         """
         self._swarm_summaries: deque[dict[str, Any]] = deque(maxlen=self._stats_window_size)
         if self.env is None or self.n_agents is None:
+            self._last_latent_state = None  # type: ignore[assignment]
             return
         self._last_latent_state = self.policy.initial_state(self.n_envs)
         self.rollout_buffer = SwarmRolloutBuffer(

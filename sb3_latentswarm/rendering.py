@@ -148,6 +148,7 @@ def render_episode(
     :raise ValueError: for a bad argument, or a model trained on another map or sensor range, before any work
     """
     import imageio.v2 as imageio
+    from PIL import Image
 
     output = Path(output)
     _check_animation_args(output, fps, max_frames)
@@ -155,10 +156,9 @@ def render_episode(
     stride = max(1, -(-config.max_steps // (max_frames - 1)))  # multiples of stride plus the last step: <= max_frames
     output.parent.mkdir(parents=True, exist_ok=True)
     gif = output.suffix.lower() == ".gif"
-    # imageio's GIF writer (pillow) reads duration in milliseconds per frame
-    options = dict(duration=1000.0 / fps, loop=0) if gif else dict(fps=fps, macro_block_size=1)
-    positions, dropouts = [], []
-    with imageio.get_writer(output, mode="I", **options) as writer:
+    positions, dropouts, palette_frames = [], [], []
+    writer = None if gif else imageio.get_writer(output, fps=fps, macro_block_size=1)
+    try:
         for _, frame, position, dropout, _, _ in _episode(
             model, config, seed, condition, deterministic, lambda t: t % stride == 0
         ):
@@ -167,9 +167,16 @@ def render_episode(
             if frame is None:
                 continue
             frame = _decorate(frame, np.asarray(positions[:-1]).reshape(-1, position.shape[0], 3), dropout, config)
-            if not gif:  # H.264 in yuv420p needs even frame sizes: pad one row/column of the border colour where needed
-                frame = np.pad(frame, ((0, frame.shape[0] % 2), (0, frame.shape[1] % 2), (0, 0)), mode="edge")
-            writer.append_data(frame)
+            if gif:  # a GIF is written at the end: keep each frame as the 1-byte palette image it becomes in the file
+                palette_frames.append(Image.fromarray(frame).convert("P", palette=Image.Palette.ADAPTIVE))
+            else:  # H.264 in yuv420p needs even frame sizes: pad one row/column of the border colour where needed
+                writer.append_data(np.pad(frame, ((0, frame.shape[0] % 2), (0, frame.shape[1] % 2), (0, 0)), mode="edge"))
+    finally:
+        if writer is not None:
+            writer.close()
+    if gif:  # pillow reads duration in milliseconds per frame (imageio passes it on unchanged)
+        first, *rest = palette_frames
+        first.save(output, save_all=True, append_images=rest, duration=1000.0 / fps, loop=0)
     plot_trajectories(np.stack(positions), np.array(dropouts), config, output.with_name(output.stem + "_trajectories.png"))
     return output
 

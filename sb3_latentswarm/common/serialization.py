@@ -279,7 +279,6 @@ def from_plain(value: Any, algorithm: type | None = None) -> Any:
     return {key: from_plain(v, algorithm) for key, v in value.items()}
 
 
-
 # ---------------------------------------------------------------------------------------------- what a file may hold
 def _is_int(value: Any) -> bool:
     return isinstance(value, numbers.Integral) and not isinstance(value, bool)

@@ -12,11 +12,22 @@ import math
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sb3_latentswarm.common.checks import check_bool, check_choice, check_float, check_int
 from sb3_latentswarm.config import SwarmConfig
-from sb3_latentswarm.evaluation import CONDITIONS, evaluate
+from sb3_latentswarm.evaluation import CONDITIONS, EXTRA_CONDITIONS, evaluate
+
+
+def _check_folder(folder: Path) -> Path:
+    """``folder``, unless it or one of its parents is an existing file (then ``best_model.zip`` could never be saved)."""
+    for candidate in (folder, *folder.parents):
+        if candidate.exists():
+            if not candidate.is_dir():
+                what = "is" if candidate == folder else f"is inside {candidate}, which is"
+                raise ValueError(f"best_model_save_path {folder} {what} an existing file, not a folder")
+            break
+    return folder
 
 
 class SwarmEvalCallback(BaseCallback):
@@ -33,13 +44,16 @@ class SwarmEvalCallback(BaseCallback):
         n_agents`` of them)
     :param n_eval_episodes: swarm episodes per evaluation
     :param config: env config of the evaluation (default: the training env's, ``model.swarm_config``)
-    :param condition: one of :data:`~sb3_latentswarm.evaluation.CONDITIONS`
+    :param condition: one of :data:`~sb3_latentswarm.evaluation.CONDITIONS` or
+        :data:`~sb3_latentswarm.evaluation.EXTRA_CONDITIONS`
     :param p_fail: link failure probability (default: the config's)
     :param deterministic: act with the policy's mean action (``False``: sample it)
     :param seed: episode ``k`` of every evaluation uses env seed ``seed + k`` (the same maps each time)
     :param best_model_save_path: if given, the model is saved there as ``best_model.zip`` whenever the mean coverage
         improves
     :param verbose: 1 prints one line per evaluation
+    :raise TypeError, ValueError: at construction, for a bad argument (``n_eval_episodes`` and ``eval_freq`` >= 1,
+        ``p_fail`` in [0, 1], ``seed`` >= 0, a ``best_model_save_path`` that is a file), before any training
     """
 
     def __init__(
@@ -55,18 +69,17 @@ class SwarmEvalCallback(BaseCallback):
         verbose: int = 0,
     ):
         super().__init__(verbose)
-        if isinstance(eval_freq, bool) or not isinstance(eval_freq, (int, np.integer)) or eval_freq < 1:
-            raise ValueError(f"eval_freq must be an int >= 1 (agent-steps), got {eval_freq!r}")
-        if condition not in CONDITIONS:
-            raise ValueError(f"Unknown condition {condition!r}; allowed conditions: {list(CONDITIONS)}")
-        self.eval_freq = int(eval_freq)
-        self.n_eval_episodes = n_eval_episodes
+        self.eval_freq = check_int("eval_freq (agent-steps)", eval_freq, low=1)
+        self.n_eval_episodes = check_int("n_eval_episodes", n_eval_episodes, low=1)
+        if config is not None and not isinstance(config, SwarmConfig):
+            raise TypeError(f"config must be a SwarmConfig or None, got {type(config).__name__}")
         self.config = config
-        self.condition = condition
-        self.p_fail = p_fail
-        self.deterministic = deterministic
-        self.seed = seed
-        self.best_model_save_path = None if best_model_save_path is None else Path(best_model_save_path)
+        self.condition = check_choice("condition", condition, CONDITIONS + EXTRA_CONDITIONS)
+        self.p_fail = None if p_fail is None else check_float("p_fail", p_fail, 0.0, 1.0)
+        self.deterministic = check_bool("deterministic", deterministic)
+        self.seed = check_int("seed", seed, low=0)
+        check_int("verbose", verbose, low=0, high=2)
+        self.best_model_save_path = None if best_model_save_path is None else _check_folder(Path(best_model_save_path))
         self.best_coverage = -math.inf
         self.evaluations: list[dict[str, Any]] = []
         """One dict per evaluation: ``num_timesteps`` and the logged means."""

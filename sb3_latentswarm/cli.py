@@ -97,10 +97,15 @@ def _print_table(title: str, markdown: str) -> None:
 
 
 def command_train(args: argparse.Namespace) -> int:
+    from sb3_latentswarm.common.checks import check_int
     from sb3_latentswarm.envs import make_vec_env
     from sb3_latentswarm.latent_ppo import LatentSwarmPPO
+    from sb3_latentswarm.latent_ppo.latent_ppo import validate_algorithm_kwargs
 
     preset = _preset_from_args(args, training=True)
+    validate_algorithm_kwargs(**preset.algo_kwargs)  # before any env is built or file written
+    if args.evaluate:
+        check_int("eval_episodes", preset.eval_episodes, low=1)
     output = Path(args.output or f"runs/{preset.name}")
     output.mkdir(parents=True, exist_ok=True)
     total = args.total_timesteps or preset.total_timesteps
@@ -180,6 +185,8 @@ def _load_model(args: argparse.Namespace):
 
     if not Path(args.model).exists():
         raise ValueError(f"--model: no file at {args.model}")
+    if not Path(args.model).is_file():
+        raise ValueError(f"--model {args.model} is not a regular file (a directory or a FIFO?); pass a model .zip")
     return LatentSwarmPPO.load(args.model, device=args.device, trust_pickle=args.trust_pickle)
 
 
@@ -209,7 +216,12 @@ def _holds_other_tables(folder: Path, record: dict[str, Any]) -> bool:
     path = folder / EVALUATION_RECORD
     if not path.exists():
         return True
-    recorded = json.loads(path.read_text())
+    try:
+        recorded = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ValueError(f"{path} cannot be read as JSON ({error}); remove it or pass another --output") from None
+    if not isinstance(recorded, dict):
+        raise ValueError(f"{path} must hold a JSON object (an evaluation record); remove it or pass another --output")
     return any(recorded.get(key) != value for key, value in record.items() if key != "sb3_latentswarm")
 
 
@@ -249,10 +261,11 @@ def command_evaluate(args: argparse.Namespace) -> int:
 
 
 def command_render(args: argparse.Namespace) -> int:
-    from sb3_latentswarm.rendering import render_episode
+    from sb3_latentswarm.rendering import check_model_fits, render_episode
 
     model = _load_model(args) if args.model else None
     preset = _preset_from_args(args, model)
+    check_model_fits(model, preset.config)
     path = render_episode(
         model,
         preset.config,
@@ -447,6 +460,36 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+USER_ERRORS = (ValueError, TypeError, RuntimeError, OSError, ArithmeticError, MemoryError)
+"""What a user's input can raise (bad settings, files, devices, torch's own checks): reported in one line, exit 2."""
+
+
+def _check_device(args: argparse.Namespace) -> None:
+    """``--device``: a torch device string; ``cuda`` without CUDA falls back to the CPU, said on stderr."""
+    if not hasattr(args, "device") or args.device == "auto":
+        return
+    import torch
+
+    try:
+        device = torch.device(args.device)
+    except RuntimeError:
+        raise ValueError(f"--device must be 'auto', 'cpu', 'cuda' or 'cuda:N', got {args.device!r}") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        print(f"sb3-latentswarm {args.command}: --device {args.device}: CUDA is not available here; running on the CPU",
+              file=sys.stderr)
+    elif device.type not in ("cpu", "cuda"):
+        raise ValueError(f"--device must be 'auto', 'cpu', 'cuda' or 'cuda:N', got {args.device!r}")
+    elif device.type == "cuda" and device.index is not None and device.index >= torch.cuda.device_count():
+        raise ValueError(f"--device {args.device}: this machine has {torch.cuda.device_count()} CUDA device(s)")
+
+
+def _check_output_folder(args: argparse.Namespace) -> None:
+    """``--output`` of train, evaluate and sweep names a folder: an existing file there is an error, before any work."""
+    output = getattr(args, "output", None)
+    if args.command in ("train", "evaluate", "sweep") and output and Path(output).exists() and not Path(output).is_dir():
+        raise ValueError(f"--output {output} is an existing file, not a folder")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -457,9 +500,13 @@ def main(argv: list[str] | None = None) -> int:
 
         torch.set_num_threads(args.threads)
     try:
+        _check_device(args)
+        _check_output_folder(args)
         return args.func(args)
-    except (ValueError, TypeError) as error:
-        parser.exit(2, f"sb3-latentswarm {args.command}: error: {error}\n")
+    except USER_ERRORS as error:
+        kind = "" if isinstance(error, (ValueError, TypeError)) else f"{type(error).__name__}: "
+        message = " ".join(str(error).split())  # one line, whatever the library wrote
+        parser.exit(2, f"sb3-latentswarm {args.command}: error: {kind}{message}\n")
     return 1
 
 

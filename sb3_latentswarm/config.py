@@ -11,14 +11,60 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import numbers
 from dataclasses import dataclass, field
 from typing import Any
+
+from sb3_latentswarm.common import checks
 
 LINK_MODES = ("channel", "full", "full_in_range", "none")
 ACTION_FRAMES = ("world", "body")
 START_REGIONS = ("uniform", "corner", "random_corner")
 OUTAGE_MODELS = ("bernoulli", "gilbert_elliott")
+
+
+INT_BOUNDS: dict[str, tuple[int, int]] = {
+    "n_agents": (1, 256),
+    "sensor_range": (0, 50),
+    "grid_width": (1, 1000),
+    "grid_height": (1, 1000),
+    "max_steps": (1, 1_000_000),
+    "num_obstacles": (0, 1_000_000),
+}
+"""Allowed ranges (inclusive) of the integer fields (``docs/concepts.md``, "Bounds of SwarmConfig")."""
+
+FLOAT_BOUNDS: dict[str, tuple[float, float, bool]] = {
+    # name: (low, high, low exclusive); chosen so that every accepted config gives finite rewards and SINRs
+    "initial_energy": (0.0, 1e6, True),
+    "energy_decay": (0.0, 1e6, False),
+    "min_altitude": (0.0, 1e4, False),
+    "max_altitude": (0.0, 1e4, False),
+    "w_cov": (0.0, 1e3, False),
+    "w_red": (0.0, 1e3, False),
+    "w_coll": (0.0, 1e3, False),
+    "stall_penalty": (0.0, 1e3, False),
+    "d_safe": (0.0, 1e4, False),
+    "cell_size": (0.0, 1e3, True),
+    "dt": (0.0, 1e3, True),
+    "v_max": (0.0, 1e3, True),
+    "vz_max": (0.0, 1e3, False),
+    "yaw_rate_max": (0.0, 100.0, False),
+    "actuation_noise_std": (0.0, 10.0, False),
+    "sensor_flip_prob": (0.0, 0.5, False),
+    "p_fail": (0.0, 1.0, False),
+    "rician_k": (0.0, 1e3, False),
+    "rician_k_altitude_slope": (0.0, 100.0, False),
+    "atmospheric_loss": (0.0, 1.0, True),
+    "tx_power_dbm": (-50.0, 60.0, False),
+    "path_loss_exponent": (0.0, 6.0, False),
+    "sinr_threshold": (0.0, 1e9, True),
+    "noise_power": (1e-9, 1e6, False),
+    "interference_max": (0.0, 1e6, False),
+    "min_link_distance": (1e-3, 1e3, False),
+}
+"""Allowed ranges of the real fields: ``(low, high, low_exclusive)``, ``high`` inclusive (``docs/concepts.md``).
+
+With these bounds the SINR of Eq. (1) is at most 1e6 mW * |h|^2 * (1e-3 m)^-6 / 1e-9 mW, finite for every finite
+fading draw, and one step's reward is at most ``1e3 * 1e6`` cells in magnitude."""
 
 
 def dbm_to_mw(power_dbm: float) -> float:
@@ -178,40 +224,16 @@ class SwarmConfig:
 
     # ------------------------------------------------------------------ validation
     def _validate(self) -> None:
-        def as_python(name: str, kind: type) -> Any:
-            # NumPy scalars (np.int64(3), np.float32(0.5)) are accepted as the Python numbers they equal
-            value = getattr(self, name)
-            if not isinstance(value, bool) and isinstance(value, kind) and not isinstance(value, (int, float)):
-                value = int(value) if kind is numbers.Integral else float(value)
-                object.__setattr__(self, name, value)
-            return value
+        def check_int(name: str, low: int, high: int) -> None:
+            # NumPy integers (np.int64(3)) are accepted as the Python ints they equal
+            object.__setattr__(self, name, checks.check_int(f"SwarmConfig.{name}", getattr(self, name), low, high))
 
-        def check_int(name: str, low: int) -> None:
-            value = as_python(name, numbers.Integral)
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise TypeError(f"SwarmConfig.{name} must be an int, got {type(value).__name__} ({value!r})")
-            if value < low:
-                raise ValueError(f"SwarmConfig.{name} must be >= {low}, got {value}")
+        def check_float(name: str, low: float, high: float, low_open: bool = False, high_open: bool = False) -> None:
+            value = checks.check_float(f"SwarmConfig.{name}", getattr(self, name), low, high, low_open, high_open)
+            object.__setattr__(self, name, value)
 
-        def check_float(name: str, low: float, high: float = math.inf, low_open: bool = False, high_open: bool = False):
-            value = as_python(name, numbers.Real)
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise TypeError(f"SwarmConfig.{name} must be a number, got {type(value).__name__} ({value!r})")
-            if not math.isfinite(value):
-                raise ValueError(f"SwarmConfig.{name} must be finite, got {value}")
-            bad_low = value <= low if low_open else value < low
-            bad_high = value >= high if high_open else value > high
-            if bad_low or bad_high:
-                left = "(" if low_open else "["
-                right = ")" if high_open else "]"
-                raise ValueError(f"SwarmConfig.{name} must be in {left}{low}, {high}{right}, got {value}")
-
-        check_int("n_agents", 1)
-        check_int("sensor_range", 0)
-        check_int("grid_width", 1)
-        check_int("grid_height", 1)
-        check_int("max_steps", 1)
-        check_int("num_obstacles", 0)
+        for name, (low, high) in INT_BOUNDS.items():
+            check_int(name, low, high)
         fw = 2 * self.sensor_range + 1
         if self.grid_width < fw or self.grid_height < fw:
             raise ValueError(
@@ -223,42 +245,18 @@ class SwarmConfig:
                 f"SwarmConfig.num_obstacles must be in [0, {self.grid_width * self.grid_height}] (the number of cells), "
                 f"got {self.num_obstacles}"
             )
-        check_float("initial_energy", 0.0, low_open=True)
-        check_float("energy_decay", 0.0)
-        check_float("min_altitude", 0.0)
-        check_float("max_altitude", self.min_altitude)
+        for name, (low, high, low_open) in FLOAT_BOUNDS.items():
+            check_float(name, low, high, low_open=low_open)
+        check_float("max_altitude", self.min_altitude, FLOAT_BOUNDS["max_altitude"][1])
         check_float("initial_altitude", self.min_altitude, self.max_altitude)
-        for name in ("w_cov", "w_red", "w_coll"):
-            check_float(name, 0.0)
-        check_float("stall_penalty", 0.0)
-        check_float("d_safe", 0.0)
-        check_float("cell_size", 0.0, low_open=True)
-        check_float("dt", 0.0, low_open=True)
-        check_float("v_max", 0.0, low_open=True)
-        check_float("vz_max", 0.0)
-        check_float("yaw_rate_max", 0.0)
-        check_float("actuation_noise_std", 0.0)
-        check_float("sensor_flip_prob", 0.0, 0.5)
+        check_float("link_range_probability", 0.0, 1.0, low_open=True, high_open=True)
         if self.action_frame not in ACTION_FRAMES:
             raise ValueError(f"SwarmConfig.action_frame must be one of {ACTION_FRAMES}, got {self.action_frame!r}")
         if self.link_mode not in LINK_MODES:
             raise ValueError(f"SwarmConfig.link_mode must be one of {LINK_MODES}, got {self.link_mode!r}")
-        check_float("p_fail", 0.0, 1.0)
-        check_float("rician_k", 0.0)
-        check_float("rician_k_altitude_slope", 0.0)
-        check_float("atmospheric_loss", 0.0, 1.0, low_open=True)
-        check_float("tx_power_dbm", -math.inf)
-        check_float("path_loss_exponent", 0.0)
-        check_float("sinr_threshold", 0.0, low_open=True)
-        check_float("noise_power", 0.0)
-        check_float("interference_max", 0.0)
-        if self.noise_power + self.interference_max <= 0.0:
-            raise ValueError("SwarmConfig.noise_power + interference_max must be > 0 (the SINR denominator)")
-        check_float("min_link_distance", 0.0, low_open=True)
-        check_float("link_range_probability", 0.0, 1.0, low_open=True, high_open=True)
         if self.start_region not in START_REGIONS:
             raise ValueError(f"SwarmConfig.start_region must be one of {START_REGIONS}, got {self.start_region!r}")
-        check_float("start_region_size", 0.0, low_open=True)
+        check_float("start_region_size", 0.0, math.inf, low_open=True)
         shorter_side = min(self.grid_width, self.grid_height) * self.cell_size
         if self.start_region in ("corner", "random_corner") and self.start_region_size > shorter_side:
             raise ValueError(
@@ -267,7 +265,7 @@ class SwarmConfig:
             )
         if self.outage_model not in OUTAGE_MODELS:
             raise ValueError(f"SwarmConfig.outage_model must be one of {OUTAGE_MODELS}, got {self.outage_model!r}")
-        check_float("mean_outage_steps", 1.0)
+        check_float("mean_outage_steps", 1.0, 1e6)
         if self.outage_model == "gilbert_elliott" and self.p_fail < 1.0:
             bernoulli_run = 1.0 / (1.0 - self.p_fail)
             if self.mean_outage_steps < bernoulli_run * (1.0 - 1e-12):

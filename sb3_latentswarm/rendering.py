@@ -20,8 +20,66 @@ ANIMATION_FORMATS = (".gif", ".mp4")
 _TRAIL_COLOURS = np.array([[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189]], dtype=np.uint8)
 
 
+def _episode(model, config: SwarmConfig, seed: int, condition: str, deterministic: bool, keep_frame):
+    """Play one episode; yield ``(t, frame or None, positions (N, 3), dropout, infos)`` per step, rendering only the
+    frames ``keep_frame(t)`` asks for (the others are ``None``), so no episode's worth of frames is held."""
+    from sb3_latentswarm.envs import SwarmReconEnv
+    from sb3_latentswarm.evaluation import condition_config, policy_switches
+
+    check_model_fits(model, config)
+    env = SwarmReconEnv(condition_config(config, condition, config.p_fail), render_mode="rgb_array")
+    observations, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    policy = getattr(model, "policy", None)
+    switches = policy_switches(policy, condition) if policy is not None else contextlib.nullcontext()
+    state, infos, t = None, {}, 0
+    with switches, th.random.fork_rng():
+        th.manual_seed(seed)  # the action noise of deterministic=False
+        while True:
+            link_rows = np.stack([obs["link_row"] for obs in observations.values()])
+            dropout = bool(np.any(link_rows.sum(-1) == 0))
+            last = not env.agents
+            yield t, env.render() if (last or keep_frame(t)) else None, env.positions.copy(), dropout, infos, last
+            if last:
+                return
+            if model is None:
+                shape = env.action_space(env.agents[0]).shape
+                actions = {agent: rng.uniform(-1, 1, shape).astype(np.float32) for agent in env.agents}
+            else:
+                actions, state = model.predict(observations, state=state, deterministic=deterministic)
+            observations, _, _, _, infos = env.step(actions)
+            t += 1
+
+
+def check_model_fits(model, config: SwarmConfig) -> None:
+    """Refuse a model whose observation shapes differ from ``config``'s (another map size or sensor range).
+
+    The number of agents may differ (the policy's parameters do not depend on it); the map and the sensor footprint may
+    not: a policy trained on another map would be rendered on inputs it never saw, or fail inside torch.
+
+    :raise ValueError: naming the differing keys, the model's shapes and the config's
+    """
+    space = getattr(model, "observation_space", None)
+    if model is None or space is None or not hasattr(space, "spaces"):
+        return
+    from sb3_latentswarm.envs.batched_core import agent_observation_space
+
+    expected = agent_observation_space(config)
+    differ = [
+        f"{key}: model {space[key].shape}, config {expected[key].shape}"
+        for key in ("local_obs", "global_map")
+        if key in space.spaces and space[key].shape != expected[key].shape
+    ]
+    if differ:
+        raise ValueError(
+            f"the model was trained on another map or sensor range than the config "
+            f"(grid {config.grid_width}x{config.grid_height}, sensor_range {config.sensor_range}): {'; '.join(differ)}. "
+            f"Render it on its training config (omit --preset/--set grid_width, grid_height, sensor_range)"
+        )
+
+
 def run_episode(model, config: SwarmConfig, seed: int = 0, condition: str = "proposed", deterministic: bool = True):
-    """Play one episode and keep every rendered frame.
+    """Play one episode and keep every rendered frame (for short episodes; :func:`render_episode` streams instead).
 
     :param model: a ``LatentSwarmPPO``, a planner with ``predict``, or ``None`` for uniformly random actions
     :param config: the env config; ``condition`` ``"full_comm"`` / ``"no_comm"`` overrides its ``link_mode``
@@ -30,59 +88,40 @@ def run_episode(model, config: SwarmConfig, seed: int = 0, condition: str = "pro
     :param deterministic: act with the mean action; ``False`` samples the policy with torch's generator seeded from
         ``seed`` inside ``torch.random.fork_rng`` (the global generator is left as it was)
     :return: (frames (T+1, H, W, 3) uint8, positions (T+1, N, 3) in metres, dropouts (T+1,) bool, final infos)
+    :raise ValueError: for a model trained on another map or sensor range (:func:`check_model_fits`)
     """
-    from sb3_latentswarm.envs import SwarmReconEnv
-    from sb3_latentswarm.evaluation import condition_config, policy_switches
-
-    env = SwarmReconEnv(condition_config(config, condition, config.p_fail), render_mode="rgb_array")
-    observations, _ = env.reset(seed=seed)
-    rng = np.random.default_rng(seed)
-    policy = getattr(model, "policy", None)
-    switches = policy_switches(policy, condition) if policy is not None else contextlib.nullcontext()
-    frames, positions, dropouts, state, infos = [], [], [], None, {}
-    with switches, th.random.fork_rng():
-        th.manual_seed(seed)  # the action noise of deterministic=False
-        while True:
-            frames.append(env.render())
-            positions.append(env.positions.copy())
-            link_rows = np.stack([obs["link_row"] for obs in observations.values()])
-            dropouts.append(bool(np.any(link_rows.sum(-1) == 0)))
-            if not env.agents:
-                break
-            if model is None:
-                shape = env.action_space(env.agents[0]).shape
-                actions = {agent: rng.uniform(-1, 1, shape).astype(np.float32) for agent in env.agents}
-            else:
-                actions, state = model.predict(observations, state=state, deterministic=deterministic)
-            observations, _, _, _, infos = env.step(actions)
-    return np.stack(frames), np.stack(positions), np.array(dropouts), infos
+    frames, positions, dropouts, final_infos = [], [], [], {}
+    for _, frame, position, dropout, step_infos, _ in _episode(model, config, seed, condition, deterministic, lambda t: True):
+        frames.append(frame)
+        positions.append(position)
+        dropouts.append(dropout)
+        final_infos = step_infos
+    return np.stack(frames), np.stack(positions), np.array(dropouts), final_infos
 
 
-def _draw_trails(frames: np.ndarray, positions: np.ndarray, config: SwarmConfig) -> np.ndarray:
-    """Overlay each UAV's past path on the frames (image rows start below the coverage bar)."""
-    frames = frames.copy()
-    n_frames, height, width, _ = frames.shape
+def _pixels(positions: np.ndarray, config: SwarmConfig, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Image rows and columns of positions (..., 3) in metres (image rows start below the coverage bar)."""
     cells = max(config.grid_width, config.grid_height)
     px = max(1, 480 // cells)
     map_h, map_w = config.grid_height * px, config.grid_width * px
-    bar = height - map_h
     x_max, y_max = config.arena_size
-    cols = np.clip((positions[..., 0] / x_max * map_w).astype(int), 0, map_w - 1)  # (T, N)
-    rows = np.clip(((1.0 - positions[..., 1] / y_max) * map_h).astype(int), 0, map_h - 1) + bar
-    colours = _TRAIL_COLOURS[np.arange(positions.shape[1]) % len(_TRAIL_COLOURS)]
-    for t in range(1, n_frames):
-        # every frame shows the trail so far: paint the newest point into this and all later frames
-        frames[t:, rows[t - 1], cols[t - 1]] = colours
-    return frames
+    cols = np.clip((positions[..., 0] / x_max * map_w).astype(int), 0, map_w - 1)
+    rows = np.clip(((1.0 - positions[..., 1] / y_max) * map_h).astype(int), 0, map_h - 1) + (height - map_h)
+    return rows, cols
 
 
-def _mark_dropouts(frames: np.ndarray, dropouts: np.ndarray, border: int = 3) -> np.ndarray:
-    frames = frames.copy()
-    marked = frames[dropouts]
-    for edge in (np.s_[:, :border], np.s_[:, -border:], np.s_[:, :, :border], np.s_[:, :, -border:]):
-        marked[edge] = (220, 30, 30)
-    frames[dropouts] = marked
-    return frames
+def _decorate(frame: np.ndarray, past: np.ndarray, dropout: bool, config: SwarmConfig, border: int = 3) -> np.ndarray:
+    """One frame with the UAV trails so far (``past``: the positions (t, N, 3) before this frame) and, when some UAV
+    received nothing, a red border."""
+    frame = frame.copy()
+    if len(past):
+        rows, cols = _pixels(past, config, frame.shape[0])  # (t, N)
+        colours = _TRAIL_COLOURS[np.arange(past.shape[1]) % len(_TRAIL_COLOURS)]
+        frame[rows, cols] = np.broadcast_to(colours, (*rows.shape, 3))
+    if dropout:
+        for edge in (np.s_[:border], np.s_[-border:], np.s_[:, :border], np.s_[:, -border:]):
+            frame[edge] = (220, 30, 30)
+    return frame
 
 
 def render_episode(
@@ -98,26 +137,47 @@ def render_episode(
     """Write an animated GIF or MP4 of one episode to ``output`` and a trajectory figure next to it
     (``*_trajectories.png``).
 
+    Frames are written as the episode runs (one frame in memory at a time). Episodes that could be longer than
+    ``max_frames`` keep every k-th step, k = ceil(max_steps / (max_frames - 1)), and always the last one; each frame
+    lasts 1 / ``fps`` seconds (GIF delays are stored in centiseconds, so 1000 / fps ms is rounded to 10 ms).
+
     :param output: file path ending in ``.gif`` or ``.mp4``
     :param fps: frames per second of the animation (> 0)
-    :param max_frames: longer episodes are subsampled evenly to at most this many frames (>= 2)
+    :param max_frames: at most this many frames are written (>= 2)
     :param deterministic: act with the policy's mean action (``False``: sample it, reproducibly from ``seed``)
+    :raise ValueError: for a bad argument, or a model trained on another map or sensor range, before any work
     """
     import imageio.v2 as imageio
+    from PIL import Image
 
     output = Path(output)
     _check_animation_args(output, fps, max_frames)
-    frames, positions, dropouts, _ = run_episode(model, config, seed=seed, condition=condition, deterministic=deterministic)
-    frames = _mark_dropouts(_draw_trails(frames, positions, config), dropouts)
-    if len(frames) > max_frames:
-        frames = frames[np.linspace(0, len(frames) - 1, max_frames).round().astype(int)]
+    check_model_fits(model, config)
+    stride = max(1, -(-config.max_steps // (max_frames - 1)))  # multiples of stride plus the last step: <= max_frames
     output.parent.mkdir(parents=True, exist_ok=True)
-    if output.suffix.lower() == ".gif":
-        imageio.mimsave(output, list(frames), duration=1.0 / fps, loop=0)
-    else:  # H.264 in yuv420p needs even frame sizes: pad one row/column of the border colour where needed
-        pad = ((0, 0), (0, frames.shape[1] % 2), (0, frames.shape[2] % 2), (0, 0))
-        imageio.mimsave(output, list(np.pad(frames, pad, mode="edge")), fps=fps, macro_block_size=1)
-    plot_trajectories(positions, dropouts, config, output.with_name(output.stem + "_trajectories.png"))
+    gif = output.suffix.lower() == ".gif"
+    positions, dropouts, palette_frames = [], [], []
+    writer = None if gif else imageio.get_writer(output, fps=fps, macro_block_size=1)
+    try:
+        for _, frame, position, dropout, _, _ in _episode(
+            model, config, seed, condition, deterministic, lambda t: t % stride == 0
+        ):
+            positions.append(position)
+            dropouts.append(dropout)
+            if frame is None:
+                continue
+            frame = _decorate(frame, np.asarray(positions[:-1]).reshape(-1, position.shape[0], 3), dropout, config)
+            if gif:  # a GIF is written at the end: keep each frame as the 1-byte palette image it becomes in the file
+                palette_frames.append(Image.fromarray(frame).convert("P", palette=Image.Palette.ADAPTIVE))
+            else:  # H.264 in yuv420p needs even frame sizes: pad one row/column of the border colour where needed
+                writer.append_data(np.pad(frame, ((0, frame.shape[0] % 2), (0, frame.shape[1] % 2), (0, 0)), mode="edge"))
+    finally:
+        if writer is not None:
+            writer.close()
+    if gif:  # pillow reads duration in milliseconds per frame (imageio passes it on unchanged)
+        first, *rest = palette_frames
+        first.save(output, save_all=True, append_images=rest, duration=1000.0 / fps, loop=0)
+    plot_trajectories(np.stack(positions), np.array(dropouts), config, output.with_name(output.stem + "_trajectories.png"))
     return output
 
 

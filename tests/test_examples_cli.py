@@ -163,7 +163,7 @@ def test_every_set_counts_and_reaches_config_algorithm_and_policy(tmp_path):
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["train", "--preset", "smoke", "--set", "p_fail=1.5"], "p_fail must be in"),
+        (["train", "--preset", "smoke", "--set", "p_fail=1.5"], "p_fail must be a finite number in [0.0, 1.0]"),
         (["evaluate", "--model", "does/not/exist.zip"], "no file at"),
         (["train", "--preset", "smoke", "--set", "grid_width=abc"], "grid_width must be an int, got str ('abc')"),
         (["train", "--preset", "smoke", "--set", "n_agents=2.5"], "n_agents must be an int, got float (2.5)"),

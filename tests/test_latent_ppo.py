@@ -322,11 +322,11 @@ def test_clear_errors_for_unsuitable_envs():
 @pytest.mark.parametrize(
     "kwargs, error, message",
     [
-        (dict(n_steps=0), ValueError, "n_steps must be >= 1, got 0"),
-        (dict(n_steps=-5), ValueError, "n_steps must be >= 1, got -5"),
+        (dict(n_steps=0), ValueError, "n_steps must be an int in \\[1, inf\\), got 0"),
+        (dict(n_steps=-5), ValueError, "n_steps must be an int in \\[1, inf\\), got -5"),
         (dict(n_steps=2.5), TypeError, r"n_steps must be an int, got float \(2.5\)"),
         (dict(pred_coef="5"), TypeError, r"pred_coef must be a number, got str \('5'\)"),
-        (dict(map_coef=float("nan")), ValueError, "map_coef must be a finite number in \\[0.0, inf\\], got nan"),
+        (dict(map_coef=float("nan")), ValueError, "map_coef must be a finite number in \\[0.0, inf\\), got nan"),
         (dict(vf_coef=float("inf")), ValueError, "vf_coef must be a finite number"),
         (dict(ent_coef=-0.1), ValueError, "ent_coef must be a finite number in"),
         (dict(max_grad_norm=0.0), ValueError, "max_grad_norm must be a finite number in \\(0.0"),

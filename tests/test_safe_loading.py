@@ -116,8 +116,13 @@ def test_saved_files_hold_no_pickle_no_machine_path_and_round_trip(tmp_path):
     model.learning_rate = lambda progress: 1e-3 * progress
     with pytest.warns(UserWarning, match="learning_rate is a function"):
         model.save(tmp_path / "lambda.zip")
-    current = 1e-3 * model._current_progress_remaining
-    assert LatentSwarmPPO.load(tmp_path / "lambda.zip").learning_rate == pytest.approx(current)
+    # here training has ended (progress_remaining 0): a constant 0 would not load, so the initial value is kept
+    assert model._current_progress_remaining <= 0
+    assert LatentSwarmPPO.load(tmp_path / "lambda.zip").learning_rate == pytest.approx(1e-3)
+    model._current_progress_remaining = 0.5
+    with pytest.warns(UserWarning, match="saved as its current value 0.0005"):
+        model.save(tmp_path / "lambda.zip")
+    assert LatentSwarmPPO.load(tmp_path / "lambda.zip").learning_rate == pytest.approx(5e-4)
 
 
 def test_load_overrides_pass_the_constructor_checks(saved):
@@ -148,3 +153,135 @@ def test_files_of_another_save_format_fail_clearly(saved, tmp_path):
     foreign = rewrite_data(saved, tmp_path / "foreign.zip", lambda d: d.pop("save_format"))
     with pytest.raises(ValueError, match="not saved by LatentSwarmPPO"):
         LatentSwarmPPO.load(foreign)
+
+
+# ---------------------------------------------------------------------------------------------- hostile plain data
+def rewrite_entry(source: Path, target: Path, name: str, content: bytes) -> Path:
+    with zipfile.ZipFile(source) as original, zipfile.ZipFile(target, "w", zipfile.ZIP_DEFLATED) as out:
+        for item in original.infolist():
+            out.writestr(item, content if item.filename == name else original.read(item.filename))
+    return target
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda d: d.update(set_parameters={"__torch_class__": "Identity"}), "entry 'set_parameters' is not an attribute"),
+        (lambda d: d.update(save={"__schedule__": "constant", "value": 0}), "data entry 'save' is not an attribute"),
+        (lambda d: d.update(predict="x"), "data entry 'predict' is not an attribute"),
+        (lambda d: d.update(_setup_model=1), "data entry '_setup_model' is not an attribute"),
+        (lambda d: d.update(device="cuda"), "data entry 'device' is not an attribute"),
+        (lambda d: d.update(learning_rate=float("inf")), "learning_rate"),
+        (lambda d: d.update(clip_range={"__schedule__": "constant", "value": float("nan")}), "data entry 'clip_range'"),
+        (lambda d: d.update(target_kl=float("nan")), "data entry 'target_kl' must be None or a finite number"),
+        (lambda d: d.update(save_format="2"), "data entry 'save_format' must be an int, got str"),
+        (lambda d: d.update(n_agents=0), "data entry 'n_agents' must be an int >= 1"),
+        (lambda d: d.update(n_agents=2), "data entry 'n_agents' is 2 but the observation 'link_row' has length 3"),
+        (lambda d: d.pop("policy_class"), "no 'policy_class'"),
+        (lambda d: d.update(policy_class={"__torch_class__": "Identity"}), "'policy_class' must be one of"),
+        (lambda d: d.update(num_timesteps="many"), "data entry 'num_timesteps' must be an int >= 0"),
+        (lambda d: d.update(policy_kwargs={"latent_dim": 10**6}), r"policy_kwargs\['latent_dim'\] must be at most 4096"),
+        (lambda d: d["observation_space"]["spaces"]["global_map"].update(shape=[4000, 4000]) or
+         d["observation_space"]["spaces"]["global_map"]["low"].update(shape=[4000, 4000]), "more than the limit"),
+        (lambda d: d.update(ep_info_buffer={"__deque__": [], "maxlen": 10**12}), "maxlen"),
+    ],
+)
+def test_plain_files_hold_only_what_save_writes(saved, tmp_path, change, message):
+    path = rewrite_data(saved, tmp_path / "changed.zip", change)
+    with pytest.raises(ValueError, match=message) as error:
+        LatentSwarmPPO.load(path)
+    assert str(path) in str(error.value)
+
+
+def test_deep_nesting_and_a_huge_data_entry_are_refused(saved, tmp_path):
+    nested = "[" * 100_000 + "]" * 100_000
+    deep = rewrite_entry(saved, tmp_path / "deep.zip", "data", json.dumps({"plain_format": 1, "save_format": 2})[:-1].encode()
+                         + b', "x": ' + nested.encode() + b"}")
+    with pytest.raises(ValueError, match="nested deeper than the limit of 32"):
+        LatentSwarmPPO.load(deep)
+    with zipfile.ZipFile(saved) as archive:
+        content = archive.read("data")
+    big = rewrite_entry(saved, tmp_path / "big.zip", "data", content[:-1] + b" " * (9 * 2**20) + b"}")
+    with pytest.raises(ValueError, match="'data' entry is 9,4.* bytes, more than the limit"):
+        LatentSwarmPPO.load(big)
+    garbage = rewrite_entry(saved, tmp_path / "notjson.zip", "data", b"\x00\xff not json")
+    with pytest.raises(ValueError, match="not valid JSON"):
+        LatentSwarmPPO.load(garbage)
+
+
+def test_a_huge_n_steps_allocates_no_rollout_buffer_without_an_env(saved, tmp_path):
+    path = rewrite_data(saved, tmp_path / "steps.zip", lambda d: d.update(n_steps=2_000_000))
+    model = LatentSwarmPPO.load(path)  # 4 GiB of buffer if it were allocated here
+    assert getattr(model, "rollout_buffer", None) is None
+    obs = make_vec_env(1, config=SMALL, seed=0).reset()
+    assert model.predict(obs, deterministic=True)[0].shape == (3, 4)
+
+
+def _rewrite_weights(saved: Path, target: Path, change) -> Path:
+    import io
+
+    import torch as th
+
+    with zipfile.ZipFile(saved) as archive:
+        weights = th.load(io.BytesIO(archive.read("policy.pth")), weights_only=True)
+    change(weights)
+    buffer = io.BytesIO()
+    th.save(weights, buffer)
+    return rewrite_entry(saved, target, "policy.pth", buffer.getvalue())
+
+
+def test_weights_are_checked_for_dtype_shape_and_finiteness(saved, tmp_path):
+    import torch as th
+
+    name = next(iter(LatentSwarmPPO.load(saved).policy.state_dict()))
+    cases = [
+        (lambda w: w.update({name: w[name].to(th.int64)}), f"policy.pth\\['{name}'\\] must be a torch.float32 tensor"),
+        (lambda w: w.update({name: w[name].fill_(float("nan"))}), "holds NaN or infinite values"),
+        (lambda w: w.update({name: w[name][:1]}), "of shape"),
+        (lambda w: w.pop(name), "missing tensors"),
+    ]
+    for k, (change, message) in enumerate(cases):
+        with pytest.raises(ValueError, match=message):
+            LatentSwarmPPO.load(_rewrite_weights(saved, tmp_path / f"w{k}.zip", change))
+    garbage = rewrite_entry(saved, tmp_path / "garbage.zip", "policy.pth", b"garbage" * 100)
+    with pytest.raises(ValueError, match="cannot be read as plain tensors") as error:
+        LatentSwarmPPO.load(garbage)
+    assert "weights_only" not in str(error.value)
+
+
+def test_pickled_file_claiming_the_plain_save_format_gets_a_consistent_message(saved, tmp_path):
+    import cloudpickle
+
+    blob = base64.b64encode(cloudpickle.dumps(SMALL)).decode()
+    entry = {":type:": "<class 'sb3_latentswarm.config.SwarmConfig'>", ":serialized:": blob}
+    path = rewrite_data(saved, tmp_path / "pickled2.zip", lambda data: data.update(swarm_config=entry))
+    with pytest.raises(ValueError, match="holds pickled entries but declares save format 2") as error:
+        LatentSwarmPPO.load(path, trust_pickle=True)
+    assert "older" not in str(error.value)
+
+
+@pytest.mark.parametrize("kind", ["directory", "fifo"])
+def test_a_directory_or_fifo_as_model_fails_at_once(tmp_path, kind, capsys):
+    import os
+
+    path = tmp_path / "model.zip"
+    path.mkdir() if kind == "directory" else os.mkfifo(path)
+    with pytest.raises(ValueError, match="directory, not a model file" if kind == "directory" else "not a regular file"):
+        LatentSwarmPPO.load(path)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["evaluate", "--model", str(path), "--preset", "smoke", "--no-baselines", "--episodes", "1"])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert str(path) in err and "Traceback" not in err
+
+
+def test_a_corrupted_evaluation_record_is_named(saved, tmp_path, capsys):
+    folder = tmp_path / "out"
+    folder.mkdir()
+    (folder / "conditions.csv").write_text("x\n1\n")
+    (folder / "evaluation.json").write_text("{not json")
+    with pytest.raises(SystemExit) as exit_info:
+        main(["evaluate", "--model", str(saved), "--preset", "smoke", "--no-baselines", "--episodes", "1",
+              "--output", str(folder)])
+    assert exit_info.value.code == 2
+    assert str(folder / "evaluation.json") in capsys.readouterr().err

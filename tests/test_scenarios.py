@@ -248,15 +248,15 @@ def test_random_corner_launches_each_swarm_from_one_drawn_corner() -> None:
     "changes, match",
     [
         ({"start_region": "center"}, r"start_region must be one of \('uniform', 'corner', 'random_corner'\), got 'center'"),
-        ({"start_region_size": 0.0}, r"start_region_size must be in \(0.0, inf\], got 0.0"),
+        ({"start_region_size": 0.0}, r"start_region_size must be a finite number in \(0.0, inf\), got 0.0"),
         ({"start_region": "corner", "start_region_size": 60.0}, r"start_region_size must be in \(0, 50.0\].*got 60.0"),
         ({"outage_model": "markov"}, r"outage_model must be one of \('bernoulli', 'gilbert_elliott'\), got 'markov'"),
-        ({"mean_outage_steps": 0.5}, r"mean_outage_steps must be in \[1.0, inf\], got 0.5"),
+        ({"mean_outage_steps": 0.5}, r"mean_outage_steps must be a finite number in \[1.0, 1000000.0\], got 0.5"),
         (
             {"outage_model": "gilbert_elliott", "p_fail": 0.9, "mean_outage_steps": 5.0},
             r"mean_outage_steps must be >= 1 / \(1 - p_fail\) = 10 steps.*p_fail=0.9, got 5.0",
         ),
-        ({"link_range_probability": 1.0}, r"link_range_probability must be in \(0.0, 1.0\), got 1.0"),
+        ({"link_range_probability": 1.0}, r"link_range_probability must be a finite number in \(0.0, 1.0\), got 1.0"),
         ({"link_mode": "near"}, r"link_mode must be one of"),
     ],
 )

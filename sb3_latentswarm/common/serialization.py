@@ -27,7 +27,11 @@ import collections
 import inspect
 import io
 import json
+import math
+import numbers
+import os
 import pathlib
+import stat
 import warnings
 import zipfile
 from typing import Any
@@ -53,6 +57,27 @@ MACHINE_SPECIFIC = ("tensorboard_log",)
 NOT_CONSTRUCTOR_ARGUMENTS = ("self", "policy", "env", "device", "_init_setup_model")
 
 _PICKLE_MARK = ":serialized:"  # how SB3's data_to_json marks a cloudpickled attribute
+
+# ---------------------------------------------------------------------------------------------- limits
+MAX_DATA_BYTES = 8 * 2**20
+"""Largest ``data`` entry read (8 MiB; the files this package writes hold about 20 kB)."""
+
+MAX_DEPTH = 32
+"""Deepest nesting of lists and dicts in the ``data`` entry (this package's files nest 7 deep)."""
+
+MAX_ARRAY_ELEMENTS = 2**20
+"""Most elements of one stored array or ``Box`` space (a 1024 x 1024 map; the paper's is 50 x 50)."""
+
+MAX_SPACE_KEYS = 64
+"""Most keys of a stored ``Dict`` space."""
+
+MAX_POLICY_WIDTH = 4096
+"""Largest integer in ``policy_kwargs`` (layer widths, latent sizes), so a file cannot declare a network of GiBs."""
+
+MAX_TENSOR_ENTRY_BYTES = 2**30
+"""Largest tensor entry (``policy.pth``, ``policy.optimizer.pth``, ``pytorch_variables.pth``) read: 1 GiB."""
+
+TENSOR_ENTRIES = ("policy.pth", "policy.optimizer.pth", "pytorch_variables.pth")
 
 
 class UnsafeModelFileError(ValueError):
@@ -173,18 +198,40 @@ def _torch_class(name: str) -> type:
 
 def _space_from_plain(value: dict[str, Any]) -> spaces.Space:
     if value["__space__"] == "Dict":
+        if not isinstance(value["spaces"], dict) or len(value["spaces"]) > MAX_SPACE_KEYS:
+            raise ValueError(f"a Dict space must map at most {MAX_SPACE_KEYS} names to spaces")
         return spaces.Dict({key: _space_from_plain(sub) for key, sub in value["spaces"].items()})
     if value["__space__"] == "Box":
         dtype = np.dtype(value["dtype"])
-        return spaces.Box(_array_from_plain(value["low"]), _array_from_plain(value["high"]), dtype=dtype)
-    raise ValueError(f"unknown space {value['__space__']!r} in a model file")
+        low, high = _array_from_plain(value["low"]), _array_from_plain(value["high"])
+        if "shape" in value and tuple(value["shape"]) != low.shape:
+            raise ValueError(f"a Box space's shape {value['shape']} differs from its bounds' shape {list(low.shape)}")
+        return spaces.Box(low, high, dtype=dtype)
+    raise ValueError(f"unknown space {value['__space__']!r}")
 
 
 def _array_from_plain(value: dict[str, Any]) -> np.ndarray:
-    dtype, shape = np.dtype(value["dtype"]), tuple(value["shape"])
+    dtype, shape = np.dtype(value["dtype"]), value["shape"]
     if not dtype.isbuiltin or dtype.kind not in "biuf":
-        raise ValueError(f"unexpected array dtype {dtype} in a model file")
-    return np.broadcast_to(np.asarray(value["__ndarray__"], dtype=dtype), shape).copy()
+        raise ValueError(f"unexpected array dtype {dtype}")
+    if not isinstance(shape, list) or len(shape) > 8 or not all(_is_int(n) and n >= 0 for n in shape):
+        raise ValueError(f"an array shape must be a list of at most 8 ints >= 0, got {shape!r}")
+    if math.prod(shape) > MAX_ARRAY_ELEMENTS:
+        raise ValueError(
+            f"an array or space of shape {tuple(shape)} has {math.prod(shape):,} elements, more than the limit of "
+            f"{MAX_ARRAY_ELEMENTS:,} (sb3_latentswarm.common.serialization.MAX_ARRAY_ELEMENTS)"
+        )
+    values = np.asarray(value["__ndarray__"], dtype=dtype)
+    if values.dtype.kind == "f" and np.isnan(values).any():
+        raise ValueError("an array holds NaN")
+    return np.broadcast_to(values, tuple(shape)).copy()
+
+
+def _schedule_value(value: dict[str, Any], key: str) -> float:
+    number = value[key]
+    if not _is_number(number):
+        raise ValueError(f"schedule {key} must be a finite number, got {number!r}")
+    return float(number)
 
 
 def from_plain(value: Any, algorithm: type | None = None) -> Any:
@@ -196,13 +243,19 @@ def from_plain(value: Any, algorithm: type | None = None) -> Any:
     if "__tuple__" in value:
         return tuple(from_plain(v, algorithm) for v in value["__tuple__"])
     if "__deque__" in value:
-        return collections.deque((from_plain(v, algorithm) for v in value["__deque__"]), maxlen=value["maxlen"])
+        maxlen = value["maxlen"]
+        if maxlen is not None and not (_is_int(maxlen) and 0 <= maxlen <= 100_000):
+            raise ValueError(f"a deque's maxlen must be None or an int in [0, 100000], got {maxlen!r}")
+        return collections.deque((from_plain(v, algorithm) for v in value["__deque__"]), maxlen=maxlen)
     if "__ndarray__" in value:
         return _array_from_plain(value)
     if "__space__" in value:
         return _space_from_plain(value)
     if "__swarm_config__" in value:
-        return SwarmConfig(**value["__swarm_config__"])
+        fields = value["__swarm_config__"]
+        if not isinstance(fields, dict):
+            raise ValueError("a SwarmConfig must be stored as a dict of its fields")
+        return SwarmConfig(**fields)
     if "__policy__" in value:
         aliases = getattr(algorithm, "policy_aliases", {})
         if value["__policy__"] not in aliases:
@@ -213,16 +266,177 @@ def from_plain(value: Any, algorithm: type | None = None) -> Any:
     if "__schedule__" in value:
         kind = value["__schedule__"]
         if kind == "constant":
-            return ConstantSchedule(float(value["value"]))
+            return ConstantSchedule(_schedule_value(value, "value"))
         if kind == "linear":
-            return LinearSchedule(float(value["start"]), float(value["end"]), float(value["end_fraction"]))
+            ends = (_schedule_value(value, key) for key in ("start", "end", "end_fraction"))
+            return LinearSchedule(*ends)
         if kind == "step":
-            return StepSchedule(value["initial_value"], value["final_value"], value["switch_fraction"])
+            return StepSchedule(*(_schedule_value(value, key) for key in ("initial_value", "final_value", "switch_fraction")))
         raise ValueError(f"unknown schedule {kind!r} in a model file")
     tags = [key for key in value if key.startswith("__") and key.endswith("__")]
     if tags:
         raise ValueError(f"unknown entry {tags[0]!r} in a model file")
     return {key: from_plain(v, algorithm) for key, v in value.items()}
+
+
+# ---------------------------------------------------------------------------------------------- what a file may hold
+def _is_int(value: Any) -> bool:
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _is_schedule(value: Any) -> bool:
+    return _is_number(value) or isinstance(value, (ConstantSchedule, LinearSchedule, StepSchedule))
+
+
+def _is_deque_of_dicts(value: Any) -> bool:
+    return isinstance(value, collections.deque) and all(isinstance(v, dict) for v in value)
+
+
+def _is_space(value: Any) -> bool:
+    return isinstance(value, (spaces.Dict, spaces.Box))
+
+
+STATE_ATTRIBUTES: dict[str, tuple[str, Any]] = {
+    "policy_class": ("a policy alias ({\"__policy__\": NAME})", lambda v: isinstance(v, type)),
+    "verbose": ("an int in [0, 2]", lambda v: _is_int(v) and 0 <= v <= 2),
+    "policy_kwargs": ("a dict", lambda v: isinstance(v, dict)),
+    "num_timesteps": ("an int >= 0", lambda v: _is_int(v) and v >= 0),
+    "_total_timesteps": ("an int >= 0", lambda v: _is_int(v) and v >= 0),
+    "_num_timesteps_at_start": ("an int >= 0", lambda v: _is_int(v) and v >= 0),
+    "seed": ("None or an int", lambda v: v is None or _is_int(v)),
+    "action_noise": ("None", lambda v: v is None),
+    "start_time": ("a finite number", _is_number),
+    "learning_rate": ("a finite number or a schedule", _is_schedule),
+    "tensorboard_log": ("None", lambda v: v is None),
+    "_episode_num": ("an int >= 0", lambda v: _is_int(v) and v >= 0),
+    "use_sde": ("False", lambda v: v is False),
+    "sde_sample_freq": ("an int", _is_int),
+    "_current_progress_remaining": ("a finite number", _is_number),
+    "_stats_window_size": ("an int in [1, 100000]", lambda v: _is_int(v) and 1 <= v <= 100_000),
+    "ep_info_buffer": ("None or a deque of dicts", lambda v: v is None or _is_deque_of_dicts(v)),
+    "ep_success_buffer": ("None or a deque", lambda v: v is None or isinstance(v, collections.deque)),
+    "_n_updates": ("an int >= 0", lambda v: _is_int(v) and v >= 0),
+    "n_steps": ("an int >= 1", lambda v: _is_int(v) and v >= 1),
+    "gamma": ("a finite number", _is_number),
+    "gae_lambda": ("a finite number", _is_number),
+    "ent_coef": ("a finite number", _is_number),
+    "vf_coef": ("a finite number", _is_number),
+    "max_grad_norm": ("a finite number", _is_number),
+    "rollout_buffer_class": ("None", lambda v: v is None),
+    "rollout_buffer_kwargs": ("an empty dict", lambda v: v == {}),
+    "batch_size": ("an int >= 1", lambda v: _is_int(v) and v >= 1),
+    "n_epochs": ("an int >= 1", lambda v: _is_int(v) and v >= 1),
+    "clip_range": ("a finite number or a schedule", _is_schedule),
+    "clip_range_vf": ("None, a finite number or a schedule", lambda v: v is None or _is_schedule(v)),
+    "normalize_advantage": ("True or False", lambda v: isinstance(v, bool)),
+    "target_kl": ("None or a finite number", lambda v: v is None or _is_number(v)),
+    "observation_space": ("a Box or Dict space", _is_space),
+    "action_space": ("a Box space", lambda v: isinstance(v, spaces.Box)),
+    "n_envs": ("an int >= 1", lambda v: _is_int(v) and v >= 1),
+    # LatentSwarmPPO's own state
+    "n_agents": ("an int >= 1", lambda v: _is_int(v) and v >= 1),
+    "save_format": ("an int", _is_int),
+    "saved_by_version": ("a str", lambda v: isinstance(v, str)),
+    "swarm_config": ("None or a SwarmConfig", lambda v: v is None or isinstance(v, SwarmConfig)),
+}
+"""Every attribute that :func:`save_plain` writes for the algorithms of this package, with the type it must have once
+decoded. Constructor arguments not listed here are accepted under their own name and checked by the constructor."""
+
+
+def saved_attributes(algorithm: type) -> set[str]:
+    """The attribute names :func:`save_plain` writes and :func:`load_plain` accepts: :data:`STATE_ATTRIBUTES` and the
+    constructor arguments of ``algorithm``."""
+    return set(STATE_ATTRIBUTES) | set(constructor_arguments(algorithm))
+
+
+def check_attributes(algorithm: type, data: dict[str, Any], path: Any) -> None:
+    """Refuse an attribute :func:`save_plain` does not write, or one of the wrong type, naming it.
+
+    Allowed: the keys of :data:`STATE_ATTRIBUTES` (with their types) and the constructor arguments of ``algorithm``
+    (validated by the constructor when the model is rebuilt).
+
+    :raise ValueError: naming the file and the entry
+    """
+    allowed = saved_attributes(algorithm)
+    for name, value in data.items():
+        expected = STATE_ATTRIBUTES.get(name)
+        if expected is None:
+            if name in allowed:
+                continue
+            raise ValueError(
+                f"{path}: data entry {name!r} is not an attribute that a saved {algorithm.__name__} holds; refused "
+                f"(a model file may hold only the attributes its save writes)"
+            )
+        description, accepts = expected
+        if not accepts(value):
+            raise ValueError(f"{path}: data entry {name!r} must be {description}, got {_describe(value)}")
+    if "policy_class" not in data:
+        raise ValueError(f"{path}: the data entry has no 'policy_class'; this is not a complete saved model")
+    aliases = getattr(algorithm, "policy_aliases", {})
+    if not any(data["policy_class"] is policy for policy in aliases.values()):
+        raise ValueError(f"{path}: data entry 'policy_class' must be one of {algorithm.__name__}'s policies {sorted(aliases)}")
+    if "policy_kwargs" in data:
+        _check_policy_kwargs(data["policy_kwargs"], path)
+
+
+def _check_policy_kwargs(value: Any, path: Any, name: str = "policy_kwargs") -> None:
+    if isinstance(value, dict):
+        for key, v in value.items():
+            _check_policy_kwargs(v, path, f"{name}[{key!r}]")
+    elif isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            _check_policy_kwargs(v, path, f"{name}[{i}]")
+    elif _is_int(value) and abs(value) > MAX_POLICY_WIDTH:
+        raise ValueError(
+            f"{path}: data entry {name} must be at most {MAX_POLICY_WIDTH} (the limit on network sizes), got {value}"
+        )
+    elif isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"{path}: data entry {name} must be finite, got {value}")
+
+
+def _describe(value: Any) -> str:
+    text = repr(value)
+    return f"{type(value).__name__} ({text[:80]}{'...' if len(text) > 80 else ''})"
+
+
+def check_weights(module: th.nn.Module, params: dict[str, Any], entry: str, path: Any) -> None:
+    """Compare the tensors read from ``entry`` with ``module``'s state dict: same names, dtypes and shapes, all finite.
+
+    :raise ValueError: naming the file, the entry and the tensor
+    """
+    if not isinstance(params, dict):
+        raise ValueError(f"{path}: {entry} must hold a dict of tensors, got {type(params).__name__}")
+    expected = module.state_dict()
+    missing, unexpected = sorted(set(expected) - set(params)), sorted(set(params) - set(expected))
+    if missing or unexpected:
+        raise ValueError(
+            f"{path}: {entry} does not match the policy the file declares: missing tensors {missing[:5]}, unexpected "
+            f"tensors {unexpected[:5]}"
+        )
+    for name, tensor in params.items():
+        want = expected[name]
+        if not isinstance(tensor, th.Tensor):
+            raise ValueError(f"{path}: {entry}[{name!r}] must be a tensor, got {type(tensor).__name__}")
+        if tensor.dtype != want.dtype or tensor.shape != want.shape:
+            raise ValueError(
+                f"{path}: {entry}[{name!r}] must be a {want.dtype} tensor of shape {tuple(want.shape)}, got "
+                f"{tensor.dtype} of shape {tuple(tensor.shape)}"
+            )
+        if tensor.is_floating_point() and not bool(th.isfinite(tensor).all()):
+            raise ValueError(f"{path}: {entry}[{name!r}] holds NaN or infinite values")
+
+
+def _check_optimizer_state(state: Any, path: Any) -> None:
+    if not isinstance(state, dict) or not isinstance(state.get("state", {}), dict):
+        raise ValueError(f"{path}: policy.optimizer.pth must hold an optimizer state dict")
+    for key, entry in state.get("state", {}).items():
+        for name, tensor in (entry.items() if isinstance(entry, dict) else ()):
+            if isinstance(tensor, th.Tensor) and tensor.is_floating_point() and not bool(th.isfinite(tensor).all()):
+                raise ValueError(f"{path}: policy.optimizer.pth state {key}[{name!r}] holds NaN or infinite values")
 
 
 # ---------------------------------------------------------------------------------------------- files
@@ -242,14 +456,58 @@ def _pickled_entries(value: Any, name: str = "data") -> list[str]:
     return []
 
 
+def _json_depth(value: Any) -> int:
+    """Nesting depth of decoded JSON, without recursion."""
+    depth, level = 0, [value]
+    while level:
+        depth += 1
+        children = (item.values() if isinstance(item, dict) else item for item in level if isinstance(item, (dict, list)))
+        level = [value for items in children for value in items]
+        if depth > MAX_DEPTH:
+            break
+    return depth
+
+
+def check_model_path(path: Any) -> None:
+    """Refuse, without opening it, a path that is not a regular file (a directory, a FIFO, a device): ``ValueError``."""
+    if not isinstance(path, (str, os.PathLike)):
+        return
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise ValueError(f"{path}: no such model file") from None
+    except OSError as error:
+        raise ValueError(f"{path}: cannot read the model file ({error.strerror})") from None
+    if stat.S_ISDIR(mode):
+        raise ValueError(f"{path} is a directory, not a model file (.zip)")
+    if not stat.S_ISREG(mode):
+        raise ValueError(f"{path} is not a regular file (a FIFO, socket or device?); a model file is a .zip file")
+
+
 def read_data(path: str | pathlib.Path | io.BufferedIOBase) -> tuple[dict[str, Any], list[str]]:
-    """The raw JSON of a model zip's ``data`` entry (nothing decoded, nothing unpickled) and its pickled entries."""
+    """The raw JSON of a model zip's ``data`` entry (nothing decoded, nothing unpickled) and its pickled entries.
+
+    :raise ValueError: naming the file, for a path that is not a regular file, a file that is not a zip with a
+        ``data`` entry, a ``data`` entry over :data:`MAX_DATA_BYTES`, nested deeper than :data:`MAX_DEPTH`, or not JSON
+    """
+    if isinstance(path, (str, os.PathLike)) and not os.path.lexists(path) and os.path.lexists(f"{path}.zip"):
+        path = f"{path}.zip"  # SB3's convention: "model" names model.zip
+    check_model_path(path)
     file = open_path(path, "r", verbose=0, suffix="zip")
     try:
         with zipfile.ZipFile(file) as archive:
             if "data" not in archive.namelist():
                 raise ValueError(f"{path} is not a saved model: its zip has no 'data' entry")
-            raw = json.loads(archive.read("data").decode())
+            size = archive.getinfo("data").file_size
+            if size > MAX_DATA_BYTES:
+                raise ValueError(
+                    f"{path}: its 'data' entry is {size:,} bytes, more than the limit of {MAX_DATA_BYTES:,} "
+                    f"(sb3_latentswarm.common.serialization.MAX_DATA_BYTES)"
+                )
+            for name in TENSOR_ENTRIES:
+                if name in archive.namelist() and archive.getinfo(name).file_size > MAX_TENSOR_ENTRY_BYTES:
+                    raise ValueError(f"{path}: its {name!r} entry is over the limit of {MAX_TENSOR_ENTRY_BYTES:,} bytes")
+            content = archive.read("data")
     except zipfile.BadZipFile as error:
         raise ValueError(f"{path} is not a saved model (not a zip file)") from error
     finally:
@@ -257,13 +515,24 @@ def read_data(path: str | pathlib.Path | io.BufferedIOBase) -> tuple[dict[str, A
             file.close()
         else:
             file.seek(0)
+    try:
+        raw = json.loads(content.decode())
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ValueError(f"{path}: its 'data' entry is not valid JSON ({error})") from None
+    except RecursionError:
+        raise ValueError(f"{path}: its 'data' entry is nested deeper than the limit of {MAX_DEPTH}") from None
+    if not isinstance(raw, dict):
+        raise ValueError(f"{path}: its 'data' entry must be a JSON object, got {type(raw).__name__}")
+    if _json_depth(raw) > MAX_DEPTH:
+        raise ValueError(f"{path}: its 'data' entry is nested deeper than the limit of {MAX_DEPTH}")
     return raw, _pickled_entries(raw)
 
 
 def save_plain(model: Any, path: str | pathlib.Path | io.BufferedIOBase, exclude=None, include=None) -> None:
     """Save ``model`` (an SB3 algorithm) in SB3's zip layout with a plain-data ``data`` entry.
 
-    What SB3's ``save`` would store, less :data:`RUN_STATE`; :data:`MACHINE_SPECIFIC` attributes are stored as ``None``.
+    What SB3's ``save`` would store, less :data:`RUN_STATE`, restricted to :func:`saved_attributes` (other attributes
+    set on the model are not saved); :data:`MACHINE_SPECIFIC` attributes are stored as ``None``.
     A schedule given as a plain function cannot be stored: it is saved as its current value, with a warning.
     """
     algorithm = type(model)
@@ -271,16 +540,19 @@ def save_plain(model: Any, path: str | pathlib.Path | io.BufferedIOBase, exclude
     excluded -= set(include or ())
     state_dicts, torch_variables = model._get_torch_save_params()
     excluded |= {name.split(".")[0] for name in state_dicts + torch_variables}
+    saved = saved_attributes(algorithm)
     data: dict[str, Any] = {"plain_format": PLAIN_FORMAT}
     for name, value in model.__dict__.items():
-        if name in excluded:
+        if name in excluded or name not in saved:
             continue
         if name in MACHINE_SPECIFIC:
             value = None
         elif callable(value) and not isinstance(value, type) and _schedule_to_plain(value) is None:
-            current = float(value(model._current_progress_remaining))
+            current, which = float(value(model._current_progress_remaining)), "current"
+            if not current > 0:  # a schedule that decayed to 0 (end of training): a constant 0 would not load
+                current, which = float(value(1.0)), "initial"
             warnings.warn(
-                f"{name} is a function, which a model file of plain data cannot hold: saved as its current value "
+                f"{name} is a function, which a model file of plain data cannot hold: saved as its {which} value "
                 f"{current:g}. Use a number, LinearSchedule or StepSchedule to save the schedule itself.",
                 stacklevel=3,
             )
@@ -309,7 +581,16 @@ def load_plain(
     """
     if raw.get("plain_format") != PLAIN_FORMAT:
         raise ValueError(f"{path}: unknown plain-data format {raw.get('plain_format')!r} (this version reads {PLAIN_FORMAT})")
-    data = {name: from_plain(value, algorithm) for name, value in raw.items() if name != "plain_format"}
+    data = {}
+    for name, value in raw.items():
+        if name == "plain_format":
+            continue
+        try:
+            data[name] = from_plain(value, algorithm)
+        except (KeyError, TypeError, ValueError, OverflowError) as error:
+            detail = f"missing field {error}" if isinstance(error, KeyError) else str(error)
+            raise ValueError(f"{path}: data entry {name!r} cannot be read: {detail}") from None
+    check_attributes(algorithm, data, path)
     arguments = constructor_arguments(algorithm)
     unknown = sorted(set(kwargs) - set(arguments))
     if unknown:
@@ -317,16 +598,45 @@ def load_plain(
     # the saved value of each argument: its attribute of the same name, or SB3's private one (stats_window_size)
     saved = {name: data.get(name, data.get(f"_{name}")) for name in arguments if name in data or f"_{name}" in data}
     saved.pop("verbose", None)  # build quietly; the saved verbosity comes back with the other attributes
-    model = algorithm(
-        policy=data.pop("policy_class"), env=None, device=device, _init_setup_model=False, **{**saved, **kwargs}
-    )
+    try:
+        model = algorithm(
+            policy=data.pop("policy_class"), env=None, device=device, _init_setup_model=False, **{**saved, **kwargs}
+        )
+    except (TypeError, ValueError) as error:
+        raise type(error)(f"{path}: {error}") from None
     overridden = set(kwargs) | {f"_{name}" for name in kwargs}
     model.__dict__.update({name: value for name, value in data.items() if name not in overridden})
-    model._setup_model()
+    if hasattr(model, "_check_loaded"):  # the algorithm's checks of saved values that depend on each other
+        model._check_loaded(path)
+    try:
+        model._setup_model()
+    except (TypeError, ValueError, RuntimeError) as error:
+        raise ValueError(f"{path}: the model the file declares cannot be built: {error}") from None
     # the tensors: torch.load(weights_only=True), which reads tensors and plain containers only
-    _, params, variables = load_from_zip_file(path, load_data=False, device=device, print_system_info=print_system_info)
-    model.set_parameters(params, exact_match=True, device=device)
+    try:
+        _, params, variables = load_from_zip_file(path, load_data=False, device=device, print_system_info=print_system_info)
+    except Exception as error:  # noqa: BLE001 - torch's own text suggests weights_only=False, which must not be followed
+        raise ValueError(
+            f"{path}: its tensor entries ({', '.join(TENSOR_ENTRIES)}) cannot be read as plain tensors "
+            f"({type(error).__name__}); the file is damaged or not a model file. It is refused."
+        ) from None
+    params = params or {}
+    if "policy" not in params:
+        raise ValueError(f"{path}: the file has no policy weights (policy.pth)")
+    check_weights(model.policy, params["policy"], "policy.pth", path)
+    for name in set(params) - {"policy"}:
+        if name == "policy.optimizer":
+            _check_optimizer_state(params[name], path)
+    try:
+        model.set_parameters(params, exact_match=True, device=device)
+    except (KeyError, RuntimeError, ValueError) as error:
+        raise ValueError(f"{path}: its tensors do not fit the model it declares ({error})") from None
     for name, value in (variables or {}).items():
         if value is not None:
-            getattr(model, name).data = value.data
+            current = getattr(model, name, None)
+            if not isinstance(current, th.Tensor) or not isinstance(value, th.Tensor) or value.shape != current.shape:
+                raise ValueError(f"{path}: pytorch_variables.pth entry {name!r} does not fit the model")
+            if value.is_floating_point() and not bool(th.isfinite(value).all()):
+                raise ValueError(f"{path}: pytorch_variables.pth entry {name!r} holds NaN or infinite values")
+            current.data = value.data
     return model

@@ -4,6 +4,11 @@ The critic learns ``(R - mean) / std`` instead of the raw return R, so the value
 the reward scale and however returns grow during training. Statistics are debiased exponential moving averages of
 the returns' first and second moments, updated once per PPO update. They are registered buffers: they live in the
 policy's ``state_dict`` and are saved and loaded with its weights.
+
+The values stored in a rollout were denormalized with the statistics of the rollout; :meth:`update` then moves the
+statistics. :meth:`normalize` with ``frame="rollout"`` maps stored values back with the statistics they were made with,
+i.e. to the critic's raw output at rollout time, so that PPO's clipped value loss compares the critic with its own old
+output in one frame (as MAPPO does, which clips around the stored raw critic output).
 """
 
 from __future__ import annotations
@@ -30,6 +35,9 @@ class ValueNorm(nn.Module):
         self.register_buffer("running_mean", th.zeros(()))
         self.register_buffer("running_mean_sq", th.zeros(()))
         self.register_buffer("debiasing_term", th.zeros(()))
+        # the statistics before the last update: the frame of the values stored in the rollout (not saved)
+        self.register_buffer("rollout_mean", th.zeros(()), persistent=False)
+        self.register_buffer("rollout_var", th.ones(()), persistent=False)
 
     def mean_var(self) -> tuple[th.Tensor, th.Tensor]:
         """The debiased mean and variance (0 and 1 before the first update)."""
@@ -44,12 +52,23 @@ class ValueNorm(nn.Module):
     def update(self, targets: th.Tensor) -> None:
         """Fold a batch of value targets (any shape) into the running statistics."""
         targets = targets.detach().float()
+        mean, var = self.mean_var()
+        self.rollout_mean.copy_(mean)
+        self.rollout_var.copy_(var)
         self.running_mean.mul_(self.beta).add_((1.0 - self.beta) * targets.mean())
         self.running_mean_sq.mul_(self.beta).add_((1.0 - self.beta) * (targets**2).mean())
         self.debiasing_term.mul_(self.beta).add_(1.0 - self.beta)
 
-    def normalize(self, values: th.Tensor) -> th.Tensor:
-        """(R - mean) / std."""
+    def normalize(self, values: th.Tensor, frame: str = "current") -> th.Tensor:
+        """(R - mean) / std.
+
+        :param frame: ``"current"``: with the current statistics (value targets); ``"rollout"``: with the statistics
+            before the last :meth:`update`, those the rollout's stored values were denormalized with
+        """
+        if frame == "rollout":
+            return (values - self.rollout_mean) / th.sqrt(self.rollout_var)
+        if frame != "current":
+            raise ValueError(f"frame must be 'current' or 'rollout', got {frame!r}")
         mean, var = self.mean_var()
         return (values - mean) / th.sqrt(var)
 

@@ -42,6 +42,7 @@ from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.envs.start_positions import sample_start_positions
 
 __all__ = [
+    "check_actions",
     "ACTOR_OBS_KEYS",
     "OBS_KEYS",
     "PROPRIO_DIM",
@@ -85,6 +86,52 @@ def agent_observation_space(config: SwarmConfig) -> spaces.Dict:
             ("global_map", spaces.Box(-1, 1, (config.grid_height, config.grid_width), np.int8)),
         ]
     )
+
+
+def check_actions(actions: Any, shape: tuple[int, ...], layout: str, n_agents: int) -> np.ndarray:
+    """The one action check of the three front ends (the batched vec env, the SuperSuit vec env, the PettingZoo env).
+
+    Return ``actions`` as a float64 array of ``shape`` clipped to [-1, 1]. Actions may exceed [-1, 1] by
+    :data:`ACTION_TOLERANCE` (float32 rounding); beyond that, or not finite, the error names the agent (``uav_i``, and
+    the swarm when there are several).
+
+    :param shape: the expected shape, whose last axis is the 4 action components
+    :param layout: what the axes are, for the message (``"one row per slot"``)
+    :param n_agents: N, to name the agent and swarm of a flat row (rows are swarm-major, agent-minor)
+    :raise TypeError: for actions that are not real numbers (strings, complex numbers, objects)
+    :raise ValueError: for another shape, or an action that is not finite or outside [-1, 1]
+    """
+    array = np.asarray(actions)
+    if array.dtype.kind not in "iuf":
+        raise TypeError(
+            f"actions must be real numbers (a float or int array), got dtype {array.dtype}; complex numbers, strings "
+            f"and objects are refused"
+        )
+    if array.shape != shape:
+        raise ValueError(f"actions must have shape {shape} ({layout}), got shape {array.shape}")
+    command = np.array(array, dtype=np.float64)
+    high, low = command.max(), command.min()  # NaN propagates and fails the test below
+    if not (-1.0 - ACTION_TOLERANCE <= low and high <= 1.0 + ACTION_TOLERANCE):
+        rows = command.reshape(-1, 4)
+        n_swarms = rows.shape[0] // n_agents
+
+        def name(row: int) -> str:
+            swarm, agent = divmod(int(row), n_agents)
+            return f"agent uav_{agent}" if n_swarms == 1 else f"agent uav_{agent} of swarm {swarm}"
+
+        finite = np.isfinite(rows).all(axis=1)
+        if not finite.all():
+            row = int(np.flatnonzero(~finite)[0])
+            raise ValueError(f"Action of {name(row)} is not finite: {rows[row].tolist()}")
+        magnitude = np.abs(rows).max(axis=1)
+        row = int(np.argmax(magnitude))
+        raise ValueError(
+            f"Action of {name(row)} is outside [-1, 1]: {rows[row].tolist()} (max |a| = {magnitude[row]}); actions are "
+            f"normalized velocity and yaw-rate commands"
+        )
+    if high > 1.0 or low < -1.0:
+        np.clip(command, -1.0, 1.0, out=command)
+    return command
 
 
 def agent_action_space() -> spaces.Box:
@@ -391,34 +438,8 @@ class SwarmBatch:
         return pos
 
     def check_actions(self, actions: Any) -> np.ndarray:
-        """Return the joint actions as a (B, N, 4) float64 array clipped to [-1, 1], or raise ``ValueError``.
-
-        Actions may exceed [-1, 1] by :data:`ACTION_TOLERANCE` (float32 rounding); beyond that, or not finite, the
-        error names the agent (``uav_i``, and the swarm when B > 1).
-        """
-        command = np.array(actions, dtype=np.float64)
-        shape = (self.n_swarms, self.n_agents, 4)
-        if command.shape != shape:
-            raise ValueError(f"actions must have shape {shape} (swarms, agents, 4), got shape {command.shape}")
-        high, low = command.max(), command.min()  # NaN propagates and fails the test below
-        if not (-1.0 - ACTION_TOLERANCE <= low and high <= 1.0 + ACTION_TOLERANCE):
-            finite = np.isfinite(command).all(axis=2)
-            if not finite.all():
-                swarm, agent = np.argwhere(~finite)[0]
-                raise ValueError(f"Action of {self._agent_name(swarm, agent)} is not finite: {command[swarm, agent].tolist()}")
-            magnitude = np.abs(command).max(axis=2)
-            swarm, agent = np.unravel_index(np.argmax(magnitude), magnitude.shape)
-            raise ValueError(
-                f"Action of {self._agent_name(swarm, agent)} is outside [-1, 1]: {command[swarm, agent].tolist()} "
-                f"(max |a| = {magnitude[swarm, agent]}); actions are normalized velocity and yaw-rate commands"
-            )
-        if high > 1.0 or low < -1.0:
-            np.maximum(command, -1.0, out=command)
-            np.minimum(command, 1.0, out=command)
-        return command
-
-    def _agent_name(self, swarm: int, agent: int) -> str:
-        return f"agent uav_{agent}" if self.n_swarms == 1 else f"agent uav_{agent} of swarm {swarm}"
+        """Return the joint actions as a (B, N, 4) float64 array clipped to [-1, 1], or raise (see :func:`check_actions`)."""
+        return check_actions(actions, (self.n_swarms, self.n_agents, 4), "swarms, agents, 4", self.n_agents)
 
     # ------------------------------------------------------------------ internals
     def _listed(self, idx: Swarms) -> list[int]:

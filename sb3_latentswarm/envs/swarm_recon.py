@@ -283,7 +283,7 @@ class SwarmReconEnv(ParallelEnv):
                 f"{type(actions).__name__}; for an array of shape (N, 4), pass dict(zip(env.agents, actions))"
             )
         try:
-            command = np.array([actions[agent] for agent in agents], dtype=np.float64)
+            command = np.array([np.asarray(actions[agent]) for agent in agents])
         except KeyError:
             missing = [agent for agent in agents if agent not in actions]
             raise ValueError(f"Missing actions for agent(s) {missing}; every live agent needs one: {agents}") from None

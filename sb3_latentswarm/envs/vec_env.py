@@ -58,10 +58,41 @@ from sb3_latentswarm.envs.batched_core import (
     SwarmBatch,
     agent_action_space,
     agent_observation_space,
+    check_actions,
 )
 from sb3_latentswarm.envs.swarm_recon import SwarmReconEnv, render_frame
 
-__all__ = ["BACKENDS", "BatchedSwarmVecEnv", "SwarmVecEnv", "make_vec_env"]
+__all__ = ["BACKENDS", "BatchedSwarmVecEnv", "SwarmVecEnv", "check_vec_normalize", "make_vec_env"]
+
+NORMALIZABLE_OBS_KEYS: tuple[str, ...] = ()
+"""Observation keys that ``VecNormalize`` may normalize: none (see :func:`check_vec_normalize`)."""
+
+
+def check_vec_normalize(env: VecEnv) -> None:
+    """Refuse a swarm VecEnv wrapped in ``VecNormalize(norm_obs=True)``, with the reason; reward normalization passes.
+
+    SB3's ``VecNormalize`` normalizes every Dict key: the 0/1 ``link_row`` the policy pools messages over stops being a
+    mask (a row [0, 1] becomes [-0.69, 1.40]), the int8 keys ``local_obs`` and ``global_map`` are truncated when the
+    rollout buffer stores them in their space's dtype (the replay's log-probabilities then differ from the rollout's),
+    and :func:`~sb3_latentswarm.evaluation.evaluate` builds its envs without the statistics. ``proprio`` and
+    ``swarm_proprio`` are already scaled by the env (positions in [0, 1], velocities in units of their maximum).
+
+    :raise ValueError: when some ``VecNormalize`` in the wrapper chain normalizes observations
+    """
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    current = env
+    while isinstance(current, VecEnvWrapper):
+        if isinstance(current, VecNormalize) and current.norm_obs:
+            raise ValueError(
+                "VecNormalize(norm_obs=True) is refused for a swarm VecEnv: it would normalize link_row (a 0/1 link mask "
+                "the policy pools messages over) and the int8 keys local_obs and global_map (truncated in the rollout "
+                "buffer), and evaluate() does not apply its statistics. No observation key may be normalized (proprio "
+                "and swarm_proprio are already scaled by the env). Use VecNormalize(venv, norm_obs=False) to normalize "
+                "rewards only, or LatentSwarmPPO(normalize_value=True) for MAPPO's value normalization"
+            )
+        current = current.venv
+
 
 #: The vec env backends of :func:`make_vec_env`.
 BACKENDS = ("batched", "supersuit")
@@ -139,6 +170,7 @@ class SwarmVecEnv(_SwarmSeeding, VecEnvWrapper):
         self.n_agents = n_agents
         self.n_swarms = venv.num_envs // n_agents
         self.config = config
+        self._reset_done = False
         self._init_seeding(seed)
         super().__init__(venv)
 
@@ -147,6 +179,7 @@ class SwarmVecEnv(_SwarmSeeding, VecEnvWrapper):
         """Reset every copy; reseeds them first after :meth:`seed` and at the first reset."""
         seed = self._take_seed()
         observations = self.venv.reset() if seed is None else self._reset_seeded(seed)
+        self._reset_done = True
         self.reset_infos = self.venv.reset_infos
         return observations
 
@@ -164,6 +197,12 @@ class SwarmVecEnv(_SwarmSeeding, VecEnvWrapper):
             observations = numpy_deepcopy(inner.observations_buffers)
         self.venv.reset_infos = infos
         return observations
+
+    def step_async(self, actions: np.ndarray) -> None:
+        """Check the actions as the batched backend does (same messages), then pass them to the copies."""
+        if not self._reset_done:
+            raise RuntimeError("step() called before reset(): call reset() first")
+        self.venv.step_async(check_actions(actions, (self.num_envs, 4), "one row per slot", self.n_agents))
 
     def step_wait(self) -> VecEnvStepReturn:
         observations, rewards, dones, infos = self.venv.step_wait()
@@ -251,10 +290,13 @@ class BatchedSwarmVecEnv(_SwarmSeeding, VecEnv):
 
     def step_wait(self) -> VecEnvStepReturn:
         core, n = self.core, self.n_agents
-        actions = np.asarray(self._actions)
-        if actions.shape != (self.num_envs, 4):
-            raise ValueError(f"actions must have shape ({self.num_envs}, 4) (one row per slot), got shape {actions.shape}")
-        reward, terminated, truncated = core.step(core.check_actions(actions.reshape(self.n_swarms, n, 4)))
+        if self._actions is None:
+            raise RuntimeError("step_wait() called without step_async(actions)")
+        if core.rngs[0] is None:
+            raise RuntimeError("step() called before reset(): call reset() first")
+        actions = check_actions(self._actions, (self.num_envs, 4), "one row per slot", n)
+        self._actions = None
+        reward, terminated, truncated = core.step(actions.reshape(self.n_swarms, n, 4))
         observations = self._observations()
         done = terminated | truncated
         coverage, collisions = core.coverage.tolist(), core.collisions.tolist()

@@ -1,6 +1,6 @@
 """LatentSwarmPPO and its policy."""
 
-from sb3_latentswarm.latent_ppo.latent_ppo import LatentSwarmPPO
+from sb3_latentswarm.latent_ppo.latent_ppo import LatentSwarmPPO, NonFiniteLossError, validate_algorithm_kwargs
 from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
 
-__all__ = ["LatentSwarmPPO", "LatentSwarmPolicy"]
+__all__ = ["LatentSwarmPPO", "LatentSwarmPolicy", "NonFiniteLossError", "validate_algorithm_kwargs"]

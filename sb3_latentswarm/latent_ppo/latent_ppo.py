@@ -15,8 +15,10 @@ A subclass of sb3-contrib's ``RecurrentPPO``. What it changes and why (see ``doc
 
 from __future__ import annotations
 
+import inspect
 import io
 import math
+import os
 import warnings
 from collections import deque
 from typing import Any, ClassVar, TypeVar
@@ -33,10 +35,12 @@ from stable_baselines3.common.utils import FloatSchedule, explained_variance, ob
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
 from sb3_latentswarm.common.buffers import SwarmRolloutBuffer
+from sb3_latentswarm.common.checks import check_bool, check_choice, check_float, check_int
 from sb3_latentswarm.common.schedules import paper_learning_rate
 from sb3_latentswarm.common.serialization import UnsafeModelFileError, load_plain, read_data, save_plain
 from sb3_latentswarm.common.type_aliases import LatentState
 from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.envs.vec_env import check_vec_normalize
 from sb3_latentswarm.latent_ppo.policies import (
     CRITIC_KEYS,
     NEW_POLICY_KWARGS,
@@ -87,31 +91,114 @@ def auxiliary_losses(evaluation: SequenceEvaluation, global_map: th.Tensor) -> t
 
 
 def check_save_format(data: dict[str, Any] | None, path: Any, formats: tuple[int, ...] = (SAVE_FORMAT,)) -> None:
-    """Raise a clear ``ValueError`` when ``data`` (a saved model's attributes) is not a loadable LatentSwarmPPO file."""
+    """Raise a clear ``ValueError`` when ``data`` (a saved model's attributes) is not a loadable LatentSwarmPPO file.
+
+    :param formats: the save formats the caller reads (:data:`SAVE_FORMAT` for plain files, :data:`PICKLED_SAVE_FORMATS`
+        for pickled files read with ``trust_pickle``)
+    """
     if not data or "save_format" not in data:
         raise ValueError(f"{path} was not saved by LatentSwarmPPO (no save_format); load it with the class that saved it")
     saved_format, saved_by = data["save_format"], data.get("saved_by_version", "unknown")
-    if saved_format not in formats:
-        newer = "a newer" if saved_format > SAVE_FORMAT else "an older"
+    if isinstance(saved_format, bool) or not isinstance(saved_format, int):
+        kind = type(saved_format).__name__
+        raise ValueError(f"{path}: data entry 'save_format' must be an int, got {kind} ({saved_format!r})")
+    if not isinstance(saved_by, str):
+        raise ValueError(f"{path}: data entry 'saved_by_version' must be a str, got {type(saved_by).__name__}")
+    if saved_format in formats:
+        return
+    if saved_format == SAVE_FORMAT:  # a pickled file that claims the plain format: no version of the package wrote it
         raise ValueError(
-            f"{path} was saved by {newer} sb3-latentswarm ({saved_by}, save format {saved_format}); this is "
-            f"sb3-latentswarm {__version__} (save format {SAVE_FORMAT}). Install sb3-latentswarm=={saved_by} to load it."
+            f"{path} holds pickled entries but declares save format {SAVE_FORMAT}, whose files are plain data: it was "
+            f"not written by sb3-latentswarm's save; refused"
         )
+    newer = "a newer" if saved_format > SAVE_FORMAT else "an older"
+    if saved_format in PICKLED_SAVE_FORMATS:
+        raise ValueError(
+            f"{path} was saved by {newer} sb3-latentswarm ({saved_by}, save format {saved_format}, pickled attributes); "
+            f"load it with trust_pickle=True (only if you trust the file) and save it again"
+        )
+    raise ValueError(
+        f"{path} was saved by {newer} sb3-latentswarm ({saved_by}, save format {saved_format}); this is "
+        f"sb3-latentswarm {__version__} (save format {SAVE_FORMAT}). Install sb3-latentswarm=={saved_by} to load it."
+    )
 
 
-def _check_int(name: str, value: Any, low: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise TypeError(f"{name} must be an int, got {type(value).__name__} ({value!r})")
-    if value < low:
-        raise ValueError(f"{name} must be >= {low}, got {value}")
+LEARNING_RATE_RANGE = (0.0, 1.0)
+"""Learning rates (and every value of a learning-rate schedule) must lie in (0, 1]."""
+CLIP_RANGE_RANGE = (0.0, 1.0)
+"""PPO's epsilon (and every value of its schedule) must lie in (0, 1]."""
 
 
-def _check_number(name: str, value: Any, low: float, high: float = math.inf, low_open: bool = False) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{name} must be a number, got {type(value).__name__} ({value!r})")
-    if not math.isfinite(value) or value < low or (low_open and value == low) or value > high:
-        left = "(" if low_open else "["
-        raise ValueError(f"{name} must be a finite number in {left}{low}, {high}], got {value}")
+def _check_schedule(name: str, value: Any, low: float, high: float = math.inf) -> None:
+    """A number in (low, high], or a schedule whose values at progress_remaining 1, 0.5 and 0 are in [low, high] and
+    whose start value (progress_remaining 1) is above ``low`` (a schedule may decay to ``low``, as SB3's linear ones do)."""
+    if not callable(value):
+        check_float(name, value, low, high, low_open=True)
+        return
+    for progress in (1.0, 0.5, 0.0):
+        try:
+            current = value(progress)
+        except Exception as error:  # noqa: BLE001 - a user's schedule; report which argument fails
+            raise ValueError(f"{name}: the schedule fails at progress_remaining={progress}: {error}") from error
+        check_float(f"{name} (its value at progress_remaining={progress})", current, low, high, low_open=progress == 1.0)
+
+
+def validate_algorithm_kwargs(**kwargs: Any) -> dict[str, Any]:
+    """Check ``LatentSwarmPPO`` keyword arguments without building anything; return them unchanged.
+
+    The one validation of the algorithm's settings: the constructor, :meth:`LatentSwarmPPO.load` (saved values and
+    overrides) and the sweep spec call it, so a bad value fails with the same message before any work starts. Only
+    the arguments given are checked; ``policy_kwargs``' entries are checked by the policy. Ranges: ``learning_rate``
+    in (0, 1], ``clip_range`` in (0, 1] (each value of a schedule, too), ``clip_range_vf`` and ``target_kl`` None or
+    > 0, ``gamma`` and ``gae_lambda`` in [0, 1], the loss weights >= 0, ``max_grad_norm`` and ``huber_delta`` > 0.
+
+    :raise TypeError: for an argument that is not one of the constructor's, or of the wrong type
+    :raise ValueError: for a value outside its range, naming the argument and the range
+    """
+    known = set(inspect.signature(LatentSwarmPPO.__init__).parameters) - {"self", "policy", "env", "device"}
+    unknown = sorted(set(kwargs) - known)
+    if unknown:
+        raise TypeError(f"unknown LatentSwarmPPO argument(s) {unknown}; valid: {', '.join(sorted(known))}")
+    for name in ("n_steps", "batch_size", "n_epochs", "chunk_length", "stats_window_size"):
+        if name in kwargs:
+            check_int(name, kwargs[name], low=1)
+    for name in ("ent_coef", "vf_coef", "map_coef", "pred_coef"):
+        if name in kwargs:
+            check_float(name, kwargs[name], low=0.0)
+    for name in ("gamma", "gae_lambda"):
+        if name in kwargs:
+            check_float(name, kwargs[name], low=0.0, high=1.0)
+    for name in ("max_grad_norm", "huber_delta"):
+        if name in kwargs:
+            check_float(name, kwargs[name], low=0.0, low_open=True)
+    if "learning_rate" in kwargs:
+        _check_schedule("learning_rate", kwargs["learning_rate"], *LEARNING_RATE_RANGE)
+    if "clip_range" in kwargs:
+        _check_schedule("clip_range", kwargs["clip_range"], *CLIP_RANGE_RANGE)
+    if kwargs.get("clip_range_vf") is not None:
+        _check_schedule("clip_range_vf (None deactivates it)", kwargs["clip_range_vf"], 0.0)
+    if kwargs.get("target_kl") is not None:
+        check_float("target_kl (None deactivates it)", kwargs["target_kl"], low=0.0, low_open=True)
+    for name in ("normalize_advantage", "normalize_value", "log_grad_norms", "compile_latent_step", "_init_setup_model"):
+        if name in kwargs:
+            check_bool(name, kwargs[name])
+    if "grad_clip" in kwargs:
+        check_choice("grad_clip", kwargs["grad_clip"], GRAD_CLIP_MODES)
+    if "value_loss" in kwargs:
+        check_choice("value_loss", kwargs["value_loss"], VALUE_LOSSES)
+    if "verbose" in kwargs:
+        check_int("verbose", kwargs["verbose"], low=0, high=2)
+    if kwargs.get("seed") is not None:
+        check_int("seed", kwargs["seed"], low=0)
+    if kwargs.get("policy_kwargs") is not None and not isinstance(kwargs["policy_kwargs"], dict):
+        raise TypeError(f"policy_kwargs must be a dict or None, got {type(kwargs['policy_kwargs']).__name__}")
+    if kwargs.get("tensorboard_log") is not None and not isinstance(kwargs["tensorboard_log"], (str, os.PathLike)):
+        raise TypeError(f"tensorboard_log must be a path or None, got {type(kwargs['tensorboard_log']).__name__}")
+    return kwargs
+
+
+class NonFiniteLossError(FloatingPointError):
+    """A loss term or a parameter became NaN or infinite during training; the message names the update and the term."""
 
 
 def _fitting_chunk_length(n_steps: int, chunk_length: int) -> int:
@@ -220,20 +307,9 @@ class LatentSwarmPPO(RecurrentPPO):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ):
-        for name, value in (("n_steps", n_steps), ("batch_size", batch_size), ("n_epochs", n_epochs)):
-            _check_int(name, value, low=1)
-        _check_int("chunk_length", chunk_length, low=1)
-        for name, value in (("ent_coef", ent_coef), ("vf_coef", vf_coef), ("map_coef", map_coef), ("pred_coef", pred_coef)):
-            _check_number(name, value, low=0.0)
-        _check_number("max_grad_norm", max_grad_norm, low=0.0, low_open=True)
-        for name, value in (("gamma", gamma), ("gae_lambda", gae_lambda)):
-            _check_number(name, value, low=0.0, high=1.0)
+        arguments = {name: value for name, value in locals().items() if name not in ("self", "policy", "env", "device")}
+        validate_algorithm_kwargs(**{name: value for name, value in arguments.items() if not name.startswith("__")})
         chunk_length = _fitting_chunk_length(n_steps, chunk_length)
-        if grad_clip not in GRAD_CLIP_MODES:
-            raise ValueError(f"grad_clip must be one of {GRAD_CLIP_MODES}, got {grad_clip!r}")
-        if value_loss not in VALUE_LOSSES:
-            raise ValueError(f"value_loss must be one of {VALUE_LOSSES}, got {value_loss!r}")
-        _check_number("huber_delta", huber_delta, low=0.0, low_open=True)
         policy_kwargs = dict(policy_kwargs or {})
         if "normalize_value" in policy_kwargs and bool(policy_kwargs["normalize_value"]) != bool(normalize_value):
             raise ValueError(
@@ -291,6 +367,7 @@ class LatentSwarmPPO(RecurrentPPO):
     @staticmethod
     def _check_swarm_env(env: VecEnv) -> int:
         """Validate a swarm VecEnv and return its number of agents per swarm."""
+        check_vec_normalize(env)
         check_observation_space(env.observation_space)
         try:
             n_agents = int(env.get_attr("n_agents", indices=0)[0]) if not hasattr(env, "n_agents") else int(env.n_agents)
@@ -340,11 +417,16 @@ class LatentSwarmPPO(RecurrentPPO):
             self.clip_range_vf = FloatSchedule(self.clip_range_vf)
 
     def _setup_rollout_state(self) -> None:
-        """(Re)build the buffer, the carried latent state and the swarm statistics for the current env size."""
-        self._last_latent_state = self.policy.initial_state(self.n_envs)
+        """(Re)build the buffer, the carried latent state and the swarm statistics for the current env size.
+
+        Without an env (a model loaded for ``predict``) nothing is allocated: the rollout buffer of ``n_steps * n_envs``
+        agent-steps is built only when there is an env to train on (:meth:`set_env`).
+        """
         self._swarm_summaries: deque[dict[str, Any]] = deque(maxlen=self._stats_window_size)
-        if self.n_agents is None:  # loaded without an env: enough for predict
+        if self.env is None or self.n_agents is None:
+            self._last_latent_state = None  # type: ignore[assignment]
             return
+        self._last_latent_state = self.policy.initial_state(self.n_envs)
         self.rollout_buffer = SwarmRolloutBuffer(
             self.n_steps,
             self.observation_space,  # type: ignore[arg-type]
@@ -427,6 +509,26 @@ class LatentSwarmPPO(RecurrentPPO):
         if env is not None:
             model.set_env(env, force_reset=force_reset)
         return model
+
+    def _check_loaded(self, path: Any) -> None:
+        """The saved spaces and swarm size must agree with each other (a file could declare any of them)."""
+        try:
+            check_observation_space(self.observation_space)
+        except (TypeError, ValueError, KeyError) as error:
+            raise ValueError(f"{path}: data entry 'observation_space' is not a swarm observation space: {error}") from None
+        if self.n_agents is None:
+            raise ValueError(f"{path}: the data entry has no 'n_agents'")
+        link_dim = self.observation_space["link_row"].shape[-1]  # type: ignore[index]
+        if link_dim != self.n_agents:
+            raise ValueError(
+                f"{path}: data entry 'n_agents' is {self.n_agents} but the observation 'link_row' has length {link_dim}"
+            )
+        if self.n_envs % self.n_agents != 0:
+            raise ValueError(f"{path}: data entry 'n_envs' ({self.n_envs}) is not a multiple of n_agents ({self.n_agents})")
+        if self.swarm_config is not None and self.swarm_config.n_agents != self.n_agents:
+            raise ValueError(
+                f"{path}: data entry 'swarm_config' has n_agents={self.swarm_config.n_agents}, 'n_agents' is {self.n_agents}"
+            )
 
     def save(self, path, exclude=None, include=None) -> None:  # type: ignore[override]
         """Save the model as plain data and tensors (no pickle): see :mod:`sb3_latentswarm.common.serialization`.
@@ -558,11 +660,13 @@ class LatentSwarmPPO(RecurrentPPO):
         policy_loss = -th.min(policy_loss_1, policy_loss_2).mean()
 
         # L_VF on the critic's scale: the returns R_t (normalized by ValueNorm when it is on), optionally clipped
-        # around the old value, squared error (the paper's) or Huber (MAPPO's)
+        # around the old value, squared error (the paper's) or Huber (MAPPO's). With ValueNorm the old values go back
+        # to the critic's raw output of the rollout (the statistics they were denormalized with), so the clip compares
+        # the critic with itself in one frame, as MAPPO does: nothing is clipped before the first gradient step.
         values, returns, old_values = evaluation.values, rollout_data.returns, rollout_data.old_values
         normalizer = self.policy.value_normalizer
         if normalizer is not None:
-            returns, old_values = normalizer.normalize(returns), normalizer.normalize(old_values)
+            returns, old_values = normalizer.normalize(returns), normalizer.normalize(old_values, frame="rollout")
         if clip_range_vf is not None:
             values = old_values + th.clamp(values - old_values, -clip_range_vf, clip_range_vf)
         if self.value_loss == "huber":
@@ -612,6 +716,7 @@ class LatentSwarmPPO(RecurrentPPO):
             self.policy.value_normalizer.update(th.as_tensor(self.rollout_buffer.returns, device=self.device))
 
         weights = self._loss_weights()
+        update = self.num_timesteps // (self.n_steps * self.n_envs)  # this update's number, counting rollouts from 1
         parameter_groups = self._parameter_groups()
         history: dict[str, list[float]] = {term: [] for term in LOSS_TERMS}
         clip_fractions, approx_kl_divs, group_norms = [], [], []
@@ -634,6 +739,12 @@ class LatentSwarmPPO(RecurrentPPO):
                 approx_kl_divs.append(approx_kl_div)
                 for term in LOSS_TERMS:
                     history[term].append(losses[term].item())
+                    if not math.isfinite(history[term][-1]):
+                        raise NonFiniteLossError(
+                            f"the {term} loss is {history[term][-1]} in update {update} "
+                            f"(epoch {epoch + 1}, minibatch {len(history[term])}); lower learning_rate (now "
+                            f"{self.policy.optimizer.param_groups[0]['lr']:g}) or check the rewards and observations"
+                        )
                 clip_fractions.append(th.mean((th.abs(ratio - 1) > clip_range).float()).item())
 
                 if self.target_kl is not None and approx_kl_div > 1.5 * self.target_kl:
@@ -650,6 +761,12 @@ class LatentSwarmPPO(RecurrentPPO):
             self._n_updates += 1
             if not continue_training:
                 break
+        bad = [name for name, p in self.policy.named_parameters() if not bool(th.isfinite(p).all())]
+        if bad:
+            raise NonFiniteLossError(
+                f"parameters {bad[:3]} became NaN or infinite in update {update} (the losses were finite: the step was "
+                f"too large); lower learning_rate (now {self.policy.optimizer.param_groups[0]['lr']:g})"
+            )
 
         explained_var = explained_variance(self.rollout_buffer.values.flatten(), self.rollout_buffer.returns.flatten())
         self.logger.record("train/entropy_loss", np.mean(history["entropy"]))

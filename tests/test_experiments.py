@@ -286,13 +286,16 @@ def test_trial_ids_are_unique_readable_and_short():
     assert all(i.startswith("independent-seed12-p_fail=0.123456789-grid_width=") for i in ids)
 
 
-def test_a_second_sweep_into_a_locked_folder_refuses_and_a_dead_holder_does_not_block(tmp_path):
+def test_a_second_sweep_into_a_locked_folder_refuses_and_a_dead_holder_does_not_block(tmp_path, capsys):
     output = tmp_path / "sweep"
     with sweep_lock(output):
         assert "pid" in (output / ".sweep.lock").read_text()
         with pytest.raises(ValueError, match="is in use by another sweep .pid"):
             with sweep_lock(output):
                 pass
+        with pytest.raises(SystemExit) as error:  # issue 18: two sweeps 2 s apart both trained the same trial
+            main(["sweep", "--preset", "smoke", "--seeds", "1", "--output", str(output)])
+        assert error.value.code == 2 and f"--output {output} is in use by another sweep" in capsys.readouterr().err
     # a holder killed with kill -9 leaves the file; the kernel has released its flock, so the next sweep goes on
     holder = subprocess.Popen(
         [sys.executable, "-c", "import sys; from pathlib import Path; from sb3_latentswarm.experiments import sweep_lock\n"

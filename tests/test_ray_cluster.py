@@ -33,6 +33,18 @@ def test_two_node_sweep_with_file_storage(tmp_path, capsys, monkeypatch):
         cluster.add_node(num_cpus=1)
         cluster.wait_for_nodes()
         output, storage = tmp_path / "sweep", tmp_path / "shared-storage"
+        # a driver with another Ray version than the cluster's: one line that says so (Ray's own check, made to fail)
+        with monkeypatch.context() as patch:
+            version = ray._private.utils.compute_version_info()
+            patch.setattr(ray._private.utils, "compute_version_info", lambda: ("2.59.0", version[1]))
+            with pytest.raises(SystemExit) as error:
+                main(["sweep", "--preset", "smoke", "--seeds", "1", "--address", cluster.address,
+                      "--output", str(tmp_path / "mismatch"), "--verbose", "0"])
+        assert error.value.code == 2
+        err = capsys.readouterr().err
+        started = f"version: Version mismatch: The cluster was started with: Ray: {ray.__version__}"
+        assert f"--address {cluster.address}: {started}" in err
+        assert "This process on" in err and "Ray: 2.59.0" in err and len(err.strip().splitlines()) == 1
         # two trials of one CPU each on two nodes of one CPU: they run at the same time, one on each node
         argv = ["sweep", "--preset", "smoke", "--seeds", "2", "--variant", "proposed", "--grid", "p_fail=0.3",
                 "--eval-episodes", "2", "--address", cluster.address, "--storage", f"file://{storage}",

@@ -239,7 +239,8 @@ def write_report(output: str | Path, commit: str | None = None) -> pd.DataFrame:
     if curves:
         figures.append(curves)
 
-    seeds_per_variant = scores.groupby("variant", sort=False)["train_seed"].unique().map(sorted).to_dict()
+    seeds = scores.groupby("variant", sort=False)["train_seed"].unique()
+    seeds_per_variant = {variant: sorted(int(seed) for seed in values) for variant, values in seeds.items()}
     machines = sorted({f"{r['node']}: {r['machine']}" for r in records})
     nodes: dict[str, list[str]] = {}
     for r in records:

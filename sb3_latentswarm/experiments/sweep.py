@@ -215,13 +215,13 @@ def _connect(address: str | None, verbose: int) -> Any:
     try:
         return ray.init(address=address, include_dashboard=False, configure_logging=False, log_to_driver=verbose > 1)
     except (ConnectionError, RuntimeError) as error:
-        first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-        if "version mismatch" in str(error).lower():
+        ray.shutdown()  # a failed connection leaves a half-made worker behind
+        text = " ".join(str(error).split()) or type(error).__name__  # Ray's messages span several lines
+        if "version mismatch" in text.lower():
             raise ValueError(
-                f"--address {address}: version: {first_line} (install Ray {ray.__version__} on every node, "
-                "or run the sweep with the cluster's Ray and Python)"
+                f"--address {address}: version: {text}; use the cluster's Ray and Python versions on this machine"
             ) from None
-        raise ValueError(f"--address {address}: cannot connect to Ray ({first_line})") from None
+        raise ValueError(f"--address {address}: cannot connect to Ray ({text})") from None
 
 
 def check_storage(storage: str | None, output: Path) -> str:

@@ -301,12 +301,13 @@ def _parse_eval_set(text: str):
 
 
 def command_sweep(args: argparse.Namespace) -> int:
-    from sb3_latentswarm.experiments import VARIANTS, SweepSpec, run_sweep
+    from sb3_latentswarm.experiments import SweepSpec, run_sweep
+    from sb3_latentswarm.experiments.spec import DEFAULT_VARIANTS
 
     spec = SweepSpec.create(
         args.preset,
         args.seeds,
-        variants=args.variant or VARIANTS,
+        variants=args.variant or DEFAULT_VARIANTS,
         grid=_parse_grid(args.grid or []),
         overrides=parse_overrides(args.set or []),
         extra_eval_sets=[_parse_eval_set(text) for text in args.eval_set or []],

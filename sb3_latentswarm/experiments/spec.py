@@ -32,11 +32,21 @@ from sb3_latentswarm.experiments.trial import (
     default_eval_sets,
     training_env_seed,
     trial_preset,
+    variant_algo_kwargs,
 )
 from sb3_latentswarm.presets import Preset, get_preset, override_targets
 
-__all__ = ["EVALUATION_ONLY_SETTINGS", "MAX_TRIAL_ID_LENGTH", "SweepSpec", "check_training_settings", "trial_id"]
+__all__ = [
+    "DEFAULT_VARIANTS",
+    "EVALUATION_ONLY_SETTINGS",
+    "MAX_TRIAL_ID_LENGTH",
+    "SweepSpec",
+    "check_training_settings",
+    "trial_id",
+]
 
+DEFAULT_VARIANTS = ("proposed", "no_comm", "independent")
+"""The variants a sweep trains unless told otherwise (the substitute-trained ones are asked for by name)."""
 EVALUATION_ONLY_SETTINGS = ("eval_episodes",)
 """Settings that change only the evaluation, not the training: refused as ``--grid`` names (two grid points would
 train the same model twice)."""
@@ -67,22 +77,27 @@ def trial_id(variant: str, train_seed: int, grid_point: Mapping[str, Any]) -> st
     return f"{readable[: MAX_TRIAL_ID_LENGTH - len(digest) - 1]}-{digest}"
 
 
-def check_training_settings(preset: Preset, where: str) -> None:
+def check_training_settings(preset: Preset, where: str, variants: Sequence[str] = VARIANTS) -> None:
     """Build what a trial builds from ``preset`` (its vec env, ``LatentSwarmPPO``'s argument checks and the policy with
-    its optimizer), without training, so every setting is checked by the code that uses it.
+    its optimizer, with each variant's own policy arguments), without training, so every setting is checked by the
+    code that uses it. The ``independent`` learner takes its PPO settings from the same arguments
+    (:meth:`~sb3_latentswarm.presets.Preset.independent_ppo_kwargs`), so they are checked here too.
 
-    :param where: names the settings in the message (``"--set/--grid point {'p_fail': 0.1}"``)
-    :raises ValueError: with the setting's own message, prefixed by ``where``
+    :param where: names the settings in the message (``"--set {...}, --grid point {'p_fail': 0.1}"``)
+    :raises ValueError, TypeError: with the setting's own message, prefixed by ``where``
     """
     from sb3_latentswarm.envs import make_vec_env
     from sb3_latentswarm.latent_ppo import LatentSwarmPPO
 
+    variants = [v for v in variants if v != "independent"] or ["proposed"]
     try:
         env = make_vec_env(preset.n_envs, config=preset.config, seed=0)
         try:
-            model = LatentSwarmPPO("LatentSwarmPolicy", env, device="cpu", _init_setup_model=False, **preset.algo_kwargs)
-            model._setup_lr_schedule()  # the policy's optimizer takes the schedule's first value
-            model.policy_class(model.observation_space, model.action_space, model.lr_schedule, **model.policy_kwargs)
+            for variant in variants:
+                algo_kwargs = variant_algo_kwargs(variant, preset.algo_kwargs)
+                model = LatentSwarmPPO("LatentSwarmPolicy", env, device="cpu", _init_setup_model=False, **algo_kwargs)
+                model._setup_lr_schedule()  # the policy's optimizer takes the schedule's first value
+                model.policy_class(model.observation_space, model.action_space, model.lr_schedule, **model.policy_kwargs)
         finally:
             env.close()
     except AssertionError as error:  # SB3's PPO checks some arguments with assert
@@ -126,7 +141,7 @@ class SweepSpec:
         preset: str,
         seeds: int,
         *,
-        variants: Sequence[str] = VARIANTS,
+        variants: Sequence[str] = DEFAULT_VARIANTS,
         grid: Mapping[str, Sequence[Any]] | None = None,
         overrides: Mapping[str, Any] | None = None,
         eval_sets: Sequence[EvalSet] | None = None,
@@ -221,7 +236,7 @@ class SweepSpec:
         presets = self.trial_presets()
         for point, point_preset in zip(self.grid_points(), presets):
             where = f"--set {self.overrides}" if not point else f"--set {self.overrides}, --grid point {point}"
-            check_training_settings(point_preset, where)
+            check_training_settings(point_preset, where, self.variants)
             for eval_set in self.eval_sets:
                 point_preset.config.replace(**eval_set.overrides)
         largest_training_seed = training_env_seed(len(self.seeds), max(p.n_envs for p in presets))

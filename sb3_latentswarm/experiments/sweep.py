@@ -18,7 +18,6 @@ checkpoint the trial reports to Tune when it is done. ``resume=True`` runs only 
 from __future__ import annotations
 
 import fcntl
-import inspect
 import json
 import os
 import shutil
@@ -32,7 +31,7 @@ from typing import Any
 
 from sb3_latentswarm.common.atomic import write_json
 from sb3_latentswarm.common.checks import check_float
-from sb3_latentswarm.experiments.report import finished_trials
+from sb3_latentswarm.experiments.report import TRIAL_FILES, finished_trials
 from sb3_latentswarm.experiments.spec import SweepSpec, trial_id
 from sb3_latentswarm.experiments.trial import train_and_evaluate
 
@@ -40,10 +39,6 @@ __all__ = ["check_cluster", "check_storage", "plan_trials", "run_sweep", "select
 
 LOCK_NAME = ".sweep.lock"
 """The lock file of a sweep folder."""
-# Mid-trial checkpoints are trial.py's (train_and_evaluate(..., resume=True) continues from the last one in its output
-# folder); the sweep's part is to give an interrupted trial the same folder again. Until that API is merged, trials
-# restart from zero.
-_RESUME = {"resume": True} if "resume" in inspect.signature(train_and_evaluate).parameters else {}
 
 
 def plan_trials(spec: SweepSpec, commit: str) -> list[dict[str, Any]]:
@@ -139,8 +134,10 @@ def _plan(
 def _auth_metadata() -> tuple[tuple[str, str], ...] | None:
     """The gRPC header carrying this machine's Ray token (``RAY_AUTH_TOKEN``, ``RAY_AUTH_TOKEN_PATH`` or
     ``~/.ray/auth_token``, as Ray reads them), or ``None`` when there is none."""
-    from ray._raylet import AuthenticationTokenLoader
-
+    try:
+        from ray._raylet import AuthenticationTokenLoader
+    except ImportError:  # a Ray before token authentication (2.5x): it has no tokens
+        return None
     loader = AuthenticationTokenLoader.instance()
     if not loader.has_token(ignore_auth_mode=True):
         return None
@@ -253,8 +250,11 @@ def check_storage(storage: str | None, output: Path) -> str:
 def _run_trial_in_tune(config: dict[str, Any], trials: dict[str, dict[str, Any]], threads: int, running: str) -> None:
     """The Ray Tune trainable: one trial, progress reported per rollout, results reported as the final checkpoint.
 
-    The trial works in ``running/<trial_id>/`` (kept when it is interrupted, so a resumed sweep continues from its
-    last mid-trial checkpoint); a node that cannot write that folder works in a temporary one.
+    The trial works in ``running/<trial_id>/`` of the sweep folder, where :func:`train_and_evaluate` keeps its
+    mid-trial checkpoints: a rerun into the same folder continues from the newest one, so a resumed sweep continues
+    an interrupted trial. A node that does not see the sweep folder (no shared file system) works in a temporary
+    folder, and an interrupted trial there starts again. Only the results (:data:`~.report.TRIAL_FILES`) travel
+    back to the driver, as the trial's Tune checkpoint.
     """
     import ray
     import torch
@@ -262,17 +262,23 @@ def _run_trial_in_tune(config: dict[str, Any], trials: dict[str, dict[str, Any]]
 
     trial = trials[config["trial_id"]]
     torch.set_num_threads(threads)
-    work = Path(running) / trial["trial_id"]
-    try:
-        work.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        work = Path(tempfile.mkdtemp(prefix=f"{trial['trial_id']}-"))
-    record = train_and_evaluate(trial, work, report=tune.report, **_RESUME)
+    shared = Path(running).parent.is_dir()  # the sweep folder exists here: this machine, or a shared file system
+    work = Path(running) / trial["trial_id"] if shared else Path(tempfile.mkdtemp(prefix=f"{trial['trial_id']}-"))
+    work.mkdir(parents=True, exist_ok=True)
+    record = train_and_evaluate(trial, work, report=tune.report)
     # the node that ran it, for run.md (trial.py records the host name as "node")
     record = {**record, "ray_node_id": ray.get_runtime_context().get_node_id()}
     write_json(work / "trial.json", record)
     final = {"agent_steps": float(record["trained_agent_steps"]), "eval_coverage": record["eval_coverage"]}
-    tune.report(final, checkpoint=tune.Checkpoint.from_directory(str(work)))  # persisted before it returns
+    results = Path(tempfile.mkdtemp(prefix=f"{trial['trial_id']}-results-"))
+    try:
+        for name in TRIAL_FILES:
+            shutil.copy2(work / name, results / name)
+        tune.report(final, checkpoint=tune.Checkpoint.from_directory(str(results)))  # persisted before it returns
+    finally:
+        shutil.rmtree(results, ignore_errors=True)
+        if not shared:
+            shutil.rmtree(work, ignore_errors=True)
 
 
 def _collect(checkpoint: Any, destination: Path) -> None:

@@ -383,6 +383,8 @@ def test_run_md_states_the_episodes_the_files_hold(tmp_path):
          "proposed-seed1 holds trial 'proposed-seed0', not 'proposed-seed1'"),
         (lambda t: (t / "proposed-seed0" / "episodes.csv").unlink(), "proposed-seed0 is damaged: no episodes.csv"),
         (lambda t: (t / "proposed-seed0" / "trial.json").write_text("{"), "proposed-seed0/trial.json is damaged"),
+        (lambda t: pd.read_csv(t / "proposed-seed0" / "episodes.csv").drop(columns="eval_set").to_csv(
+            t / "proposed-seed0" / "episodes.csv", index=False), "proposed-seed0/episodes.csv has no column(s) ['eval_set']"),
         (lambda t: (t / "proposed-seed0" / "trial.json").write_text(json.dumps(
             {**json.loads((t / "proposed-seed0" / "trial.json").read_text()), "eval_env_seeds": [1_000_000, 1_000_299]})),
          "proposed-seed0 was evaluated with other eval_env_seeds"),

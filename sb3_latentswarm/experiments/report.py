@@ -79,6 +79,14 @@ def finished_trials(output: str | Path, spec: SweepSpec) -> dict[str, dict[str, 
                 f"{folder} holds trial {record.get('trial_id')!r}, not {folder.name!r} (a copied folder?); "
                 f"move it out of {trials_dir}"
             )
+        with open(folder / "episodes.csv") as handle:
+            header = handle.readline().strip().split(",")
+        absent = [c for c in (*grid_labels(record.get("grid_point") or {}), *CELL_COLUMNS, "trial_id") if c not in header]
+        if absent:
+            raise ValueError(
+                f"{folder}/episodes.csv has no column(s) {absent} (written by an older version, whose p_fail column held "
+                "the grid point); delete the folder and --resume trains the trial again"
+            )
         differ = [key for key, value in expected_eval.items() if record.get(key) != value]
         if differ:
             raise ValueError(

@@ -165,11 +165,11 @@ class SweepSpec:
         unknown = [v for v in variants if v not in VARIANTS]
         if unknown or not variants:
             raise ValueError(f"--variant: unknown variant(s) {unknown or list(variants)}; choose from {list(VARIANTS)}")
-        grid = {name: tuple(values) for name, values in (grid or {}).items()}
+        grid_values: dict[str, tuple[Any, ...]] = {name: tuple(values) for name, values in (grid or {}).items()}
         overrides = dict(overrides or {})
-        _check_settings(list(grid), "--grid")
+        _check_settings(list(grid_values), "--grid")
         _check_settings(list(overrides), "--set")
-        for name, values in grid.items():
+        for name, values in grid_values.items():
             if name in EVALUATION_ONLY_SETTINGS:
                 raise ValueError(
                     f"--grid {name}: changes the evaluation only, so its grid points would train the same model; "
@@ -193,7 +193,7 @@ class SweepSpec:
             preset=preset,
             variants=variants,
             seeds=tuple(range(seeds)),
-            grid=grid,
+            grid=grid_values,
             overrides=overrides,
             eval_sets=eval_sets,
             eval_episodes=eval_episodes,

@@ -135,7 +135,7 @@ def _auth_metadata() -> tuple[tuple[str, str], ...] | None:
     """The gRPC header carrying this machine's Ray token (``RAY_AUTH_TOKEN``, ``RAY_AUTH_TOKEN_PATH`` or
     ``~/.ray/auth_token``, as Ray reads them), or ``None`` when there is none."""
     try:
-        from ray._raylet import AuthenticationTokenLoader
+        from ray._raylet import AuthenticationTokenLoader  # type: ignore[attr-defined]
     except ImportError:  # a Ray before token authentication (2.5x): it has no tokens
         return None
     loader = AuthenticationTokenLoader.instance()
@@ -175,7 +175,7 @@ def check_cluster(address: str) -> None:
         with grpc.insecure_channel(f"{host}:{port}") as channel:
             try:
                 stub = gcs_service_pb2_grpc.NodeInfoGcsServiceStub(channel)
-                stub.GetClusterId(gcs_service_pb2.GetClusterIdRequest(), timeout=10.0, metadata=metadata)
+                stub.GetClusterId(gcs_service_pb2.GetClusterIdRequest(), timeout=10.0, metadata=metadata)  # type: ignore[attr-defined]
             except grpc.RpcError as error:
                 return error.code()
         return grpc.StatusCode.OK
@@ -197,7 +197,7 @@ def check_cluster(address: str) -> None:
     mode = os.environ.get("RAY_AUTH_MODE")
     if mode is None:
         from ray._private.authentication.authentication_token_setup import _enable_token_auth
-        from ray._raylet import AuthenticationTokenLoader
+        from ray._raylet import AuthenticationTokenLoader  # type: ignore[attr-defined]
 
         _enable_token_auth()  # RAY_AUTH_MODE=token for this process and its children, as `ray start` does
         AuthenticationTokenLoader.instance().reset_cache()
@@ -326,7 +326,8 @@ def _run_tune(
             verbose=verbose,
         ),
     )
-    for result in tuner.fit():  # after an interruption, trials that never started have no config
+    results = tuner.fit()
+    for result in (results[i] for i in range(len(results))):  # trials that never started have no config
         name = (result.config or {}).get("trial_id")
         if name and result.error is None and result.checkpoint is not None and not (trials_dir / name).exists():
             _collect(result.checkpoint, trials_dir / name)

@@ -294,6 +294,8 @@ def _parse_grid(pairs: list[str]) -> dict[str, list[Any]]:
         name, _, raw = pair.partition("=")
         if not raw:
             raise ValueError(f"--grid expects FIELD=V1,V2,..., got {pair!r}")
+        if name in grid:
+            raise ValueError(f"--grid {name} given twice; give all its values once: --grid {name}=V1,V2,...")
         grid[name] = [_overrides_of("--grid", [f"{name}={value}"])[name] for value in raw.split(",")]
     return grid
 
@@ -312,19 +314,24 @@ def _parse_eval_set(text: str):
 
 
 def command_sweep(args: argparse.Namespace) -> int:
-    from sb3_latentswarm.experiments import run_sweep
+    from sb3_latentswarm.experiments import SweepSpec, run_sweep
+    from sb3_latentswarm.experiments.spec import DEFAULT_VARIANTS
 
+    spec = SweepSpec.create(
+        args.preset,
+        args.seeds,
+        variants=args.variant or DEFAULT_VARIANTS,
+        grid=_parse_grid(args.grid or []),
+        overrides=parse_overrides(args.set or []),
+        extra_eval_sets=[_parse_eval_set(text) for text in args.eval_set or []],
+        eval_episodes=args.eval_episodes,
+        deterministic=not args.stochastic,
+    )
     try:
         run_sweep(
-            args.preset,
-            args.seeds,
-            variants=args.variant or ("proposed", "no_comm", "independent"),
-            grid=_parse_grid(args.grid or []),
-            overrides=parse_overrides(args.set or []),
-            extra_eval_sets=[_parse_eval_set(text) for text in args.eval_set or []],
-            eval_episodes=args.eval_episodes,
-            deterministic=not args.stochastic,
+            spec,
             address=args.address,
+            storage=args.storage,
             cpus_per_trial=args.cpus_per_trial,
             gpus_per_trial=args.gpus_per_trial,
             output=args.output,
@@ -447,6 +454,11 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--eval-episodes", type=positive_int, default=None, help="episodes per cell (default: the preset's)")
     sweep.add_argument("--stochastic", action="store_true", help="evaluate with sampled actions (default: the mean action)")
     sweep.add_argument("--address", default=None, help="Ray cluster to attach to (default: start Ray on this machine)")
+    sweep.add_argument(
+        "--storage", default=None, metavar="URI",
+        help="Ray Tune storage for the trials' results: s3://, gs://, file:// or a path every node shares "
+        "(default: OUTPUT/ray)",
+    )
     sweep.add_argument("--cpus-per-trial", type=float, default=1.0, help="CPUs per trial (and its torch threads; default 1)")
     sweep.add_argument("--gpus-per-trial", type=float, default=0.0, help="GPUs per trial (default 0: train on the CPU)")
     sweep.add_argument("--output", default=None, help="result folder (default runs/sweeps/PRESET)")

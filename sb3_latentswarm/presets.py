@@ -134,7 +134,7 @@ Gaussian, its log std bounded smoothly (``docs/algorithm.md``, "The actor")."""
 
 
 def _algo_kwargs(
-    n_steps: int, chunk_length: int, batch_size: int, latent_dim: int, hidden: int, mappo: bool = False, **extra: Any
+    *, n_steps: int, chunk_length: int, batch_size: int, latent_dim: int, hidden: int, mappo: bool = False, **extra: Any
 ) -> dict:
     kwargs: dict[str, Any] = dict(
         n_steps=n_steps,
@@ -164,7 +164,14 @@ def _paper() -> Preset:
         config=config,
         n_envs=n_envs,
         total_timesteps=updates * n_steps * n_envs * config.n_agents,
-        algo_kwargs=_algo_kwargs(600, 25, 4500, 512, 256, learning_rate=paper_learning_rate(updates, 1000)),
+        algo_kwargs=_algo_kwargs(
+            n_steps=n_steps,
+            chunk_length=25,
+            batch_size=4500,
+            latent_dim=512,
+            hidden=256,
+            learning_rate=paper_learning_rate(updates, 1000),
+        ),
         baseline_timesteps=updates * n_steps * n_envs * config.n_agents,
         description="Sec. IV verbatim: 50x50, N=3, d=512, 40 envs, 1600 updates of 600 steps (115M agent-steps; GPU).",
     )
@@ -191,7 +198,9 @@ def _fast() -> Preset:
         config=config,
         n_envs=n_envs,
         total_timesteps=4_320_000,
-        algo_kwargs=_algo_kwargs(n_steps, 25, 3000, 64, 128, learning_rate=3e-4, mappo=True),
+        algo_kwargs=_algo_kwargs(
+            n_steps=n_steps, chunk_length=25, batch_size=3000, latent_dim=64, hidden=128, learning_rate=3e-4, mappo=True
+        ),
         baseline_timesteps=600_000,
         description="25x25 cells of 2 m (the paper's 50 m arena), T=300, d=64, 16 envs, 300 updates (~30 min on 2 cores).",
     )
@@ -225,7 +234,9 @@ def _coordination() -> Preset:
         config=config,
         n_envs=n_envs,
         total_timesteps=updates * n_steps * n_envs * config.n_agents,
-        algo_kwargs=_algo_kwargs(n_steps, 20, 1920, 64, 128, learning_rate=3e-4, mappo=True),
+        algo_kwargs=_algo_kwargs(
+            n_steps=n_steps, chunk_length=20, batch_size=1920, latent_dim=64, hidden=128, learning_rate=3e-4, mappo=True
+        ),
         baseline_timesteps=updates * n_steps * n_envs * config.n_agents,
         eval_episodes=50,
         description="20x20 cells of 2.5 m, corner launch, T=80: message-free heuristics lose 28 points (~15 min, 1 thread).",
@@ -239,7 +250,7 @@ def _demo() -> Preset:
         config=config,
         n_envs=8,
         total_timesteps=90_000,
-        algo_kwargs=_algo_kwargs(40, 10, 160, 32, 64, learning_rate=3e-4),
+        algo_kwargs=_algo_kwargs(n_steps=40, chunk_length=10, batch_size=160, latent_dim=32, hidden=64, learning_rate=3e-4),
         baseline_timesteps=20_000,
         eval_episodes=10,
         description="12x12, N=2, T=40, d=32: learns to beat a random swarm in about a minute.",
@@ -253,7 +264,7 @@ def _smoke() -> Preset:
         config=config,
         n_envs=2,
         total_timesteps=2 * 20 * 2 * 3,
-        algo_kwargs=_algo_kwargs(20, 5, 30, 8, 16, n_epochs=1, mappo=True),
+        algo_kwargs=_algo_kwargs(n_steps=20, chunk_length=5, batch_size=30, latent_dim=8, hidden=16, n_epochs=1, mappo=True),
         baseline_timesteps=2 * 3 * 128,
         eval_episodes=2,
         description="Seconds: checks the whole pipeline runs; results mean nothing.",

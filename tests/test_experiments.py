@@ -1,7 +1,9 @@
 """Multi-seed sweeps: the across-seed intervals on data with known answers, bad input, and one smoke sweep on Ray."""
 
+import dataclasses
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -14,14 +16,19 @@ import pytest
 from sb3_latentswarm.cli import main
 from sb3_latentswarm.experiments import (
     EvalSet,
+    SweepSpec,
     aggregate_scores,
+    finished_trials,
     interquartile_mean,
     interval_estimates,
-    make_spec,
     mean,
     plan_trials,
     stratified_bootstrap_ci,
+    sweep_lock,
+    trial_id,
+    write_report,
 )
+from sb3_latentswarm.experiments.spec import MAX_TRIAL_ID_LENGTH
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -98,15 +105,15 @@ def test_aggregate_scores_per_group_drops_runs_without_a_score():
 
 # ---------------------------------------------------------------------------------------------- planning and bad input
 def test_plan_crosses_variants_seeds_and_grid_points():
-    spec = make_spec("smoke", 2, ["proposed", "independent"], grid={"p_fail": [0.1, 0.5]})
+    spec = SweepSpec.create("smoke", 2, variants=["proposed", "independent"], grid={"p_fail": [0.1, 0.5]})
     trials = plan_trials(spec, "abc")
     assert len(trials) == 2 * 2 * 2 and len({t["trial_id"] for t in trials}) == 8
     assert {"proposed-seed1-p_fail=0.5", "independent-seed0-p_fail=0.1"} <= {t["trial_id"] for t in trials}
     # --set eval_episodes is the default of --eval-episodes; a larger n_envs moves the training seeds up
-    assert make_spec("smoke", 1, overrides={"eval_episodes": 7})["eval_episodes"] == 7
+    assert SweepSpec.create("smoke", 1, overrides={"eval_episodes": 7}).eval_episodes == 7
     with pytest.raises(ValueError, match="overlaps the training env seeds"):
-        make_spec("smoke", 3, overrides={"n_envs": 400_000})
-    eval_sets = [s["name"] for s in spec["eval_sets"]]
+        SweepSpec.create("smoke", 3, overrides={"n_envs": 400_000})
+    eval_sets = [s.name for s in spec.eval_sets]
     assert eval_sets[0] == "table1" and "p_fail=0.5" in eval_sets  # Table I's conditions and its p_f sweep
 
 
@@ -114,7 +121,7 @@ def test_plan_crosses_variants_seeds_and_grid_points():
     "args, message",
     [
         (["--variant", "mappo"], "invalid choice"),
-        (["--seeds", "0"], "--seeds must be an int >= 1, got 0"),
+        (["--seeds", "0"], "--seeds must be an int in [1, inf), got 0"),
         (["--only", "proposed-seed7"], "--only: unknown trial id(s) ['proposed-seed7']"),
         (["--grid", "warp_speed=1,2"], "--grid: unknown setting"),
         (["--grid", "p_fail=0.1,2.0"], "p_fail"),
@@ -122,9 +129,23 @@ def test_plan_crosses_variants_seeds_and_grid_points():
         (["--eval-set", "bad=learning_rate=0.1"], "--eval-set bad: unknown SwarmConfig field"),
         (["--eval-set", "bad=p_fail=0.7,conditions=proposed+telepathy"], "unknown condition 'telepathy'"),
         (["--address", "127.0.0.1:1"], "no Ray cluster answers there"),
-        (["--cpus-per-trial", "0"], "--cpus-per-trial must be > 0"),
-        (["--gpus-per-trial", "-1"], "--gpus-per-trial must be >= 0"),
+        (["--cpus-per-trial", "0"], "--cpus-per-trial must be a finite number in (0.0, inf), got 0.0"),
+        (["--gpus-per-trial", "-1"], "--gpus-per-trial must be a finite number in [0.0, inf), got -1.0"),
         (["--address", "nonsense"], "HOST:PORT"),
+        # issue 18: refused before anything starts
+        (["--grid", "p_fail=0.1,0.10"], "--grid p_fail: the values [0.1, 0.1] repeat [0.1]"),
+        (["--grid", "n_epochs=1,1.0"], "--grid n_epochs: the values [1, 1.0] repeat"),
+        (["--grid", "eval_episodes=1,5"], "--grid eval_episodes: changes the evaluation only"),
+        (["--grid", "p_fail=0.1", "--grid", "p_fail=0.5"], "--grid p_fail given twice"),
+        (["--grid", "p_fail=0.1,0.5", "--set", "p_fail=0.2"], "--grid p_fail is also given in --set"),
+        (["--set", "n_epochs=0"], "n_epochs must be >= 1, got 0"),
+        (["--set", "learning_rate=-1"], "Invalid learning rate: -1"),
+        (["--set", "latent_dim=0"], "latent_dim must be >= 1, got 0"),
+        (["--set", "batch_size=1"], "batch_size must hold at least one whole swarm sequence"),
+        (["--grid", "batch_size=30,1"], "--grid point {'batch_size': 1}: batch_size must hold"),
+        (["--set", "n_envs=0"], "n_envs must be an int >= 1"),
+        (["--storage", "/proc/no-such-storage"], "--storage /proc/no-such-storage: cannot write there"),
+        (["--storage", "nosuchscheme://bucket/x"], "--storage nosuchscheme://bucket/x: cannot write there"),
     ],
 )
 def test_bad_sweep_input_exits_2_before_training(tmp_path, capsys, args, message):
@@ -140,10 +161,13 @@ def test_bad_sweep_input_exits_2_before_training(tmp_path, capsys, args, message
 
 
 def test_eval_set_parsing():
-    spec = make_spec("smoke", 1, extra_eval_sets=[EvalSet("pf07", {"p_fail": 0.7}, ("proposed", "no_memory"))])
-    assert spec["eval_sets"][-1] == {"name": "pf07", "overrides": {"p_fail": 0.7}, "conditions": ["proposed", "no_memory"]}
+    spec = SweepSpec.create("smoke", 1, extra_eval_sets=[EvalSet("pf07", {"p_fail": 0.7}, ("proposed", "no_memory"))])
+    assert spec.eval_sets[-1] == EvalSet("pf07", {"p_fail": 0.7}, ("proposed", "no_memory"))
+    assert spec.to_dict()["eval_sets"][-1] == {
+        "name": "pf07", "overrides": {"p_fail": 0.7}, "conditions": ["proposed", "no_memory"]
+    }
     with pytest.raises(ValueError, match="unique"):
-        make_spec("smoke", 1, extra_eval_sets=[EvalSet("table1")])
+        SweepSpec.create("smoke", 1, extra_eval_sets=[EvalSet("table1")])
 
 
 # ---------------------------------------------------------------------------------------------- the sweep, end to end
@@ -232,3 +256,148 @@ def test_only_selects_among_the_unfinished_trials_in_plan_order():
     assert ids(select_trials(trials, {"proposed-seed0"}, only)) == ["no_comm-seed0", "proposed-seed1"]
     with pytest.raises(ValueError, match="unknown trial id"):
         select_trials(trials, set(), ["proposed-seed9"])
+
+
+# ---------------------------------------------------------------------------------------------- spec, ids, folder checks
+def test_spec_round_trips_through_sweep_json(tmp_path):
+    spec = SweepSpec.create(
+        "smoke", 2, variants=["proposed"], grid={"p_fail": [0.1, 0.5], "log_std_bounds": [(-5.0, 0.0), (-4.0, 0.0)]}
+    )
+    spec.save(tmp_path / "sweep.json")
+    assert SweepSpec.load(tmp_path / "sweep.json") == spec
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        spec.eval_episodes = 3  # type: ignore[misc]
+    (tmp_path / "bad.json").write_text(json.dumps({**spec.to_dict(), "eval_episode": 5}))
+    with pytest.raises(ValueError, match="bad.json is not a sweep spec"):
+        SweepSpec.load(tmp_path / "bad.json")
+
+
+def test_trial_ids_are_unique_readable_and_short():
+    assert trial_id("proposed", 0, {"p_fail": 0.5}) == "proposed-seed0-p_fail=0.5"
+    # characters a folder name should not hold are replaced, and the exact point is hashed into the tail
+    a, b = trial_id("proposed", 0, {"log_std_bounds": (-5.0, 0.0)}), trial_id("proposed", 0, {"log_std_bounds": (-5.0, 1.0)})
+    assert a.startswith("proposed-seed0-log_std_bounds=_-5.0__0.0_-") and a != b
+    # the 14-field grid of issue 18 gave a 312-character id that Ray Tune could not use as a folder name
+    fields = ["p_fail", "grid_width", "grid_height", "num_obstacles", "max_steps", "v_max", "d_safe", "cell_size",
+              "initial_energy", "n_epochs", "ent_coef", "vf_coef", "gamma", "gae_lambda"]
+    long = {name: 0.123456789 for name in fields}
+    ids = {trial_id("independent", 12, long), trial_id("independent", 12, {**long, "gamma": 0.5})}
+    assert len(ids) == 2 and all(len(i) <= MAX_TRIAL_ID_LENGTH for i in ids)
+    assert all(i.startswith("independent-seed12-p_fail=0.123456789-grid_width=") for i in ids)
+
+
+def test_a_second_sweep_into_a_locked_folder_refuses_and_a_dead_holder_does_not_block(tmp_path, capsys):
+    output = tmp_path / "sweep"
+    with sweep_lock(output):
+        assert "pid" in (output / ".sweep.lock").read_text()
+        with pytest.raises(ValueError, match="is in use by another sweep .pid"):
+            with sweep_lock(output):
+                pass
+        with pytest.raises(SystemExit) as error:  # issue 18: two sweeps 2 s apart both trained the same trial
+            main(["sweep", "--preset", "smoke", "--seeds", "1", "--output", str(output)])
+        assert error.value.code == 2 and f"--output {output} is in use by another sweep" in capsys.readouterr().err
+    # a holder killed with kill -9 leaves the file; the kernel has released its flock, so the next sweep goes on
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from pathlib import Path; from sb3_latentswarm.experiments import sweep_lock\n"
+         f"with sweep_lock(Path({str(output)!r})):\n    print('held', flush=True); sys.stdin.read()"],
+        env={**os.environ, "PYTHONPATH": str(ROOT)}, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(ValueError, match=f"pid {holder.pid}"):
+            with sweep_lock(output):
+                pass
+    finally:
+        holder.kill()
+        holder.wait()
+    with sweep_lock(output):
+        pass
+
+
+def _fake_sweep(output: Path, spec: SweepSpec, episodes_per_cell: int | None = None) -> None:
+    """A finished sweep without training: every trial folder as train_and_evaluate writes it, made-up scores."""
+    from sb3_latentswarm.evaluation import EPISODE_COLUMNS
+    from sb3_latentswarm.experiments.trial import conditions_for, grid_labels
+
+    spec.save(output / "sweep.json")
+    n = episodes_per_cell or spec.eval_episodes
+    rng = np.random.default_rng(0)
+    for trial in plan_trials(spec, "abc"):
+        folder = output / "trials" / trial["trial_id"]
+        folder.mkdir(parents=True)
+        labels = {"trial_id": trial["trial_id"], "variant": trial["variant"], "train_seed": trial["train_seed"],
+                  **grid_labels(trial["grid_point"])}
+        rows = []
+        for eval_set in spec.eval_sets:
+            p_fail = eval_set.overrides.get("p_fail", trial["grid_point"].get("p_fail", 0.3))
+            for condition in conditions_for(trial["variant"], eval_set.conditions or ("proposed", "no_comm")):
+                for episode in range(n):
+                    row = dict.fromkeys(EPISODE_COLUMNS, 0.0)
+                    row.update(episode=episode, seed=spec.eval_seed + episode, condition=condition, p_fail=p_fail,
+                               coverage=rng.uniform(50, 90), steps_to_90=np.nan, eval_set=eval_set.name)
+                    rows.append(row)
+        pd.DataFrame(rows).assign(**labels).to_csv(folder / "episodes.csv", index=False)
+        pd.DataFrame({"agent_steps": [120.0, 240.0], "episode_reward": [1.0, 2.0], "coverage": [40.0, 50.0],
+                      "collisions": [1.0, 0.0]}).assign(**labels).to_csv(folder / "progress.csv", index=False)
+        (folder / "model.zip").write_bytes(b"PK")
+        record = {**labels, "grid_point": trial["grid_point"], "preset": spec.preset, "commit": "abc", "machine": "cpu",
+                  "node": "host-a", "ray_node_id": "n" * 56, "budget_agent_steps": 240, "trained_agent_steps": 240,
+                  "train_seconds": 1.0, "eval_env_seeds": [spec.eval_seed, spec.eval_seed + spec.eval_episodes - 1],
+                  "eval_sets": [s.to_dict() for s in spec.eval_sets], "deterministic": spec.deterministic}
+        (folder / "trial.json").write_text(json.dumps(record))
+
+
+def test_a_grid_over_a_table_column_writes_the_report(tmp_path):
+    # issue 18: `--grid p_fail=0.1,0.5` (the docs' example) trained everything, then failed with
+    # "cannot insert p_fail, already exists"; the grid point is now the column grid.p_fail, the cell's p_f stays p_fail
+    spec = SweepSpec.create("smoke", 2, variants=["proposed", "no_comm"], grid={"p_fail": [0.1, 0.5]})
+    _fake_sweep(tmp_path, spec)
+    aggregate = write_report(tmp_path)
+    scores = pd.read_csv(tmp_path / "scores.csv")
+    assert set(scores["grid.p_fail"]) == {0.1, 0.5}
+    table1 = scores.query("eval_set == 'table1'")
+    assert (table1["p_fail"] == table1["grid.p_fail"]).all()  # Table I's cell runs at the trial's p_f
+    assert set(scores.query("eval_set == 'p_fail=0.5'")["p_fail"]) == {0.5}  # a p_f cell keeps its own p_f
+    assert set(aggregate.query("metric == 'coverage'")["n_runs"]) == {2}
+    run_md = (tmp_path / "run.md").read_text()
+    assert "8 finished of the 8 planned" in run_md and "host-a (Ray node nnnn" in run_md
+    for name in ("aggregate.md", "intervals_coverage.png", "learning_curves.png"):
+        assert (tmp_path / name).stat().st_size > 0
+
+
+def test_run_md_states_the_episodes_the_files_hold(tmp_path):
+    # an edited sweep.json said 50 episodes while scores.csv had 300: run.md now counts the stored episodes
+    spec = SweepSpec.create("smoke", 1, variants=["proposed"], eval_episodes=2)
+    _fake_sweep(tmp_path, spec, episodes_per_cell=3)
+    write_report(tmp_path)
+    run_md = (tmp_path / "run.md").read_text()
+    assert "evaluation: 3 episodes per cell and run (scores.csv), env seeds 1000000..1000002" in run_md
+
+
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (lambda t: shutil.copytree(t / "proposed-seed0", t / "proposed-seed0 copy"),
+         "proposed-seed0 copy is not a trial of this sweep"),
+        (lambda t: (shutil.rmtree(t / "proposed-seed1"), shutil.copytree(t / "proposed-seed0", t / "proposed-seed1")),
+         "proposed-seed1 holds trial 'proposed-seed0', not 'proposed-seed1'"),
+        (lambda t: (t / "proposed-seed0" / "episodes.csv").unlink(), "proposed-seed0 is damaged: no episodes.csv"),
+        (lambda t: (t / "proposed-seed0" / "trial.json").write_text("{"), "proposed-seed0/trial.json is damaged"),
+        (lambda t: pd.read_csv(t / "proposed-seed0" / "episodes.csv").drop(columns="eval_set").to_csv(
+            t / "proposed-seed0" / "episodes.csv", index=False), "proposed-seed0/episodes.csv has no column(s) ['eval_set']"),
+        (lambda t: (t / "proposed-seed0" / "trial.json").write_text(json.dumps(
+            {**json.loads((t / "proposed-seed0" / "trial.json").read_text()), "eval_env_seeds": [1_000_000, 1_000_299]})),
+         "proposed-seed0 was evaluated with other eval_env_seeds"),
+    ],
+)
+def test_stray_or_damaged_trial_folders_are_named(tmp_path, capsys, damage, message):
+    spec = SweepSpec.create("smoke", 2, variants=["proposed"])
+    _fake_sweep(tmp_path, spec)
+    assert list(finished_trials(tmp_path, spec)) == ["proposed-seed0", "proposed-seed1"]
+    damage(tmp_path / "trials")
+    with pytest.raises(ValueError, match=re.escape(message)):
+        finished_trials(tmp_path, spec)
+    # the sweep refuses it before Ray starts, with the same message (exit status 2)
+    with pytest.raises(SystemExit) as error:
+        main(["sweep", "--preset", "smoke", "--seeds", "2", "--variant", "proposed", "--output", str(tmp_path), "--resume"])
+    assert error.value.code == 2 and message in capsys.readouterr().err

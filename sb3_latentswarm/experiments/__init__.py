@@ -1,9 +1,10 @@
 """Multi-seed experiments: training seeds x variants x grid points on Ray Tune, with across-seed intervals.
 
-``run_sweep`` (and ``sb3-latentswarm sweep``) trains every (variant, training seed, grid point) as one Ray Tune trial,
-evaluates each trained model on held-out seeds under the evaluation cells, and writes the per-run scores and their
-IQM and mean with stratified-bootstrap confidence intervals. Ray is needed only to run trials (extra ``sweep``); the
-aggregation (:mod:`.aggregate`) and the report (:mod:`.report`) need NumPy, SciPy, pandas and matplotlib.
+``run_sweep(SweepSpec.create(...))`` (and ``sb3-latentswarm sweep``) trains every (variant, training seed, grid point)
+as one Ray Tune trial, evaluates each trained model on held-out seeds under the evaluation cells, and writes the
+per-run scores and their IQM and mean with stratified-bootstrap confidence intervals. Ray is needed only to run trials
+(extra ``sweep``); the spec (:mod:`.spec`), the aggregation (:mod:`.aggregate`) and the report (:mod:`.report`) need
+NumPy, SciPy, pandas and matplotlib.
 """
 
 from sb3_latentswarm.experiments.aggregate import (
@@ -13,8 +14,9 @@ from sb3_latentswarm.experiments.aggregate import (
     mean,
     stratified_bootstrap_ci,
 )
-from sb3_latentswarm.experiments.report import write_report
-from sb3_latentswarm.experiments.sweep import check_address, make_spec, plan_trials, run_sweep
+from sb3_latentswarm.experiments.report import finished_trials, write_report
+from sb3_latentswarm.experiments.spec import SweepSpec, trial_id
+from sb3_latentswarm.experiments.sweep import check_cluster, check_storage, plan_trials, run_sweep, sweep_lock
 from sb3_latentswarm.experiments.trial import (
     EVAL_SEED_BASE,
     SCORE_METRICS,
@@ -29,16 +31,20 @@ __all__ = [
     "SCORE_METRICS",
     "VARIANTS",
     "EvalSet",
+    "SweepSpec",
     "aggregate_scores",
-    "check_address",
+    "check_cluster",
+    "check_storage",
     "default_eval_sets",
+    "finished_trials",
     "interquartile_mean",
     "interval_estimates",
-    "make_spec",
     "mean",
     "plan_trials",
     "run_sweep",
     "stratified_bootstrap_ci",
+    "sweep_lock",
     "train_and_evaluate",
+    "trial_id",
     "write_report",
 ]

@@ -15,12 +15,15 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from sb3_latentswarm.common.atomic import atomic_path, write_text
 from sb3_latentswarm.experiments.aggregate import aggregate_scores, mean, stratified_bootstrap_ci
-from sb3_latentswarm.experiments.trial import SCORE_METRICS, all_conditions, finished_trial_dirs, run_scores
+from sb3_latentswarm.experiments.spec import SweepSpec, trial_id
+from sb3_latentswarm.experiments.trial import SCORE_METRICS, all_conditions, grid_labels, run_scores
 
 METRIC_LABELS = {
     "coverage": "Coverage (%)",
@@ -31,9 +34,71 @@ METRIC_LABELS = {
 CELL_COLUMNS = ("eval_set", "condition", "p_fail")
 
 
-def _read_trials(output: Path, name: str) -> pd.DataFrame:
-    paths = [folder / name for folder in finished_trial_dirs(output)]
-    frames = [pd.read_csv(path) for path in paths if path.stat().st_size > 1]
+TRIAL_FILES = ("trial.json", "episodes.csv", "progress.csv", "model.zip")
+"""What a finished trial folder holds."""
+
+
+def finished_trials(output: str | Path, spec: SweepSpec) -> dict[str, dict[str, Any]]:
+    """The finished trials of the sweep in ``output``, ``{trial_id: trial.json record}``, in folder-name order.
+
+    Every folder of ``output/trials`` must be a complete trial of ``spec`` (the hidden ``.<trial_id>.partial``
+    folders of an interrupted copy are skipped): one named after a trial of ``spec``, holding :data:`TRIAL_FILES`,
+    whose ``trial.json`` names the same trial and the evaluation ``spec`` asks for.
+
+    :raises ValueError: naming the folder, for a stray folder (not a trial of ``spec``, or a copy of another trial) or
+        a damaged one (a file missing, or results of other evaluation settings), with what to do about it
+    """
+    trials_dir = Path(output) / "trials"
+    planned = {trial_id(v, s, p) for p in spec.grid_points() for s in spec.seeds for v in spec.variants}
+    expected_eval = {
+        "eval_env_seeds": [spec.eval_seed, spec.eval_seed + spec.eval_episodes - 1],
+        "eval_sets": [s.to_dict() for s in spec.eval_sets],
+        "deterministic": spec.deterministic,
+    }
+    expected_eval = json.loads(json.dumps(expected_eval))
+    records = {}
+    folders = sorted(p for p in trials_dir.iterdir() if not p.name.startswith(".")) if trials_dir.is_dir() else []
+    for folder in folders:
+        if folder.name not in planned:
+            raise ValueError(
+                f"{folder} is not a trial of this sweep (its trials are {sorted(planned)}); move it out of {trials_dir}"
+            )
+        missing = [name for name in TRIAL_FILES if not (folder / name).is_file()]
+        if missing:
+            raise ValueError(
+                f"{folder} is damaged: no {', '.join(missing)}; delete the folder and --resume trains the trial again"
+            )
+        try:
+            record = json.loads((folder / "trial.json").read_text())
+        except json.JSONDecodeError as error:
+            raise ValueError(
+                f"{folder}/trial.json is damaged ({error}); delete the folder and --resume trains it again"
+            ) from None
+        if record.get("trial_id") != folder.name:
+            raise ValueError(
+                f"{folder} holds trial {record.get('trial_id')!r}, not {folder.name!r} (a copied folder?); "
+                f"move it out of {trials_dir}"
+            )
+        with open(folder / "episodes.csv") as handle:
+            header = handle.readline().strip().split(",")
+        absent = [c for c in (*grid_labels(record.get("grid_point") or {}), *CELL_COLUMNS, "trial_id") if c not in header]
+        if absent:
+            raise ValueError(
+                f"{folder}/episodes.csv has no column(s) {absent} (written by an older version, whose p_fail column held "
+                "the grid point); delete the folder and --resume trains the trial again"
+            )
+        differ = [key for key, value in expected_eval.items() if record.get(key) != value]
+        if differ:
+            raise ValueError(
+                f"{folder} was evaluated with other {', '.join(differ)} than sweep.json asks "
+                f"({ {k: record.get(k) for k in differ} }); delete the folder and --resume trains it again"
+            )
+        records[folder.name] = record
+    return records
+
+
+def _read_trials(output: Path, ids: list[str], name: str) -> pd.DataFrame:
+    frames = [pd.read_csv(path) for path in (output / "trials" / i / name for i in ids) if path.stat().st_size > 1]
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
@@ -85,7 +150,8 @@ def _plot_intervals(aggregate: pd.DataFrame, group_columns: list[str], output: P
         axis.legend(fontsize=8)
         figure.tight_layout()
         name = f"intervals_{metric}.png"
-        figure.savefig(output / name, dpi=120)
+        with atomic_path(output / name) as path:
+            figure.savefig(path, dpi=120)
         plt.close(figure)
         names.append(name)
     return names
@@ -120,14 +186,15 @@ def _plot_learning_curves(progress: pd.DataFrame, grid_columns: list[str], outpu
         axis.legend(fontsize=8)
     figure.suptitle("Training: mean across seeds, 95 % bootstrap band")
     figure.tight_layout()
-    figure.savefig(output / "learning_curves.png", dpi=120)
+    with atomic_path(output / "learning_curves.png") as path:
+        figure.savefig(path, dpi=120)
     plt.close(figure)
     return "learning_curves.png"
 
 
-def _in_sweep_order(frame: pd.DataFrame, columns: list[str], spec: dict) -> pd.DataFrame:
+def _in_sweep_order(frame: pd.DataFrame, columns: list[str], spec: SweepSpec) -> pd.DataFrame:
     """``frame`` sorted by ``columns``, with variants, evaluation sets and conditions in the order the sweep names them."""
-    ranks = {"variant": spec["variants"], "eval_set": [s["name"] for s in spec["eval_sets"]], "condition": all_conditions()}
+    ranks = {"variant": spec.variants, "eval_set": [s.name for s in spec.eval_sets], "condition": all_conditions()}
 
     def rank(column: pd.Series) -> pd.Series:
         return column.map({value: i for i, value in enumerate(ranks[column.name])}) if column.name in ranks else column
@@ -135,59 +202,83 @@ def _in_sweep_order(frame: pd.DataFrame, columns: list[str], spec: dict) -> pd.D
     return frame.sort_values(columns, key=rank, kind="stable", ignore_index=True)
 
 
+def _counts(values: pd.Series) -> str:
+    """``"50"``, or ``"50 (3 runs), 300 (1 run)"`` when the stored files disagree."""
+    counts = values.value_counts(sort=False).sort_index()
+    if len(counts) == 1:
+        return f"{counts.index[0]:,}"
+    return ", ".join(f"{value:,} ({n} run{'s' if n > 1 else ''})" for value, n in counts.items())
+
+
 def write_report(output: str | Path, commit: str | None = None) -> pd.DataFrame:
     """Write the tables, plots and ``run.md`` of the sweep in ``output`` from its finished trials.
 
+    ``run.md`` states what the stored files show: episode counts and seeds from the episodes, budgets, machines and
+    nodes from the trials' records; ``sweep.json`` gives only what was planned.
+
     :param commit: the code that writes the report (default: the first trial's); each trial records its own
     :return: the aggregate table (long format, see :func:`~.aggregate.aggregate_scores`)
+    :raises ValueError: when no trial is finished, or a trial folder is stray or damaged (:func:`finished_trials`)
     """
     from sb3_latentswarm.common.run_record import write_run_record
 
     output = Path(output)
-    spec = json.loads((output / "sweep.json").read_text())
-    records = [json.loads((folder / "trial.json").read_text()) for folder in finished_trial_dirs(output)]
-    if not records:
+    spec = SweepSpec.load(output / "sweep.json")
+    by_id = finished_trials(output, spec)
+    if not by_id:
         raise ValueError(f"{output}: no finished trial to report")
-    grid_columns = list(spec["grid"])
-    episodes = _read_trials(output, "episodes.csv")
-    episodes.to_csv(output / "episodes.csv", index=False)
+    ids, records = list(by_id), list(by_id.values())
+    grid_columns = list(grid_labels(dict.fromkeys(spec.grid)))
+    episodes = _read_trials(output, ids, "episodes.csv")
+    with atomic_path(output / "episodes.csv") as path:
+        episodes.to_csv(path, index=False)
     run_columns = [*grid_columns, *CELL_COLUMNS, "variant", "train_seed", "trial_id"]
     scores = _in_sweep_order(run_scores(episodes, run_columns), run_columns, spec)
-    scores.to_csv(output / "scores.csv", index=False)
+    with atomic_path(output / "scores.csv") as path:
+        scores.to_csv(path, index=False)
     group_columns = [*grid_columns, *CELL_COLUMNS, "variant"]  # the variants of one cell side by side
     aggregate = aggregate_scores(scores, group_columns, SCORE_METRICS)
-    aggregate.to_csv(output / "aggregate.csv", index=False)
+    with atomic_path(output / "aggregate.csv") as path:
+        aggregate.to_csv(path, index=False)
     markdown = aggregate_markdown(aggregate, group_columns)
-    (output / "aggregate.md").write_text(markdown)
+    write_text(output / "aggregate.md", markdown)
     figures = _plot_intervals(aggregate, group_columns, output)
-    curves = _plot_learning_curves(_read_trials(output, "progress.csv"), grid_columns, output)
+    curves = _plot_learning_curves(_read_trials(output, ids, "progress.csv"), grid_columns, output)
     if curves:
         figures.append(curves)
 
-    seeds_per_variant = scores.groupby("variant")["train_seed"].nunique().to_dict()
+    seeds = scores.groupby("variant", sort=False)["train_seed"].unique()
+    seeds_per_variant = {variant: sorted(int(seed) for seed in values) for variant, values in seeds.items()}
     machines = sorted({f"{r['node']}: {r['machine']}" for r in records})
-    trained = sorted({r["trained_agent_steps"] for r in records})
+    nodes: dict[str, list[str]] = {}
+    for r in records:
+        nodes.setdefault(f"{r['node']} (Ray node {r.get('ray_node_id') or 'not recorded'})", []).append(r["trial_id"])
+    cells = scores.drop_duplicates("eval_set")
     eval_sets = ", ".join(
-        f"{s['name']} ({', '.join(f'{k}={v}' for k, v in s['overrides'].items()) or 'preset config'}; "
-        f"{', '.join(s['conditions']) if s['conditions'] else 'every condition'})"
-        for s in spec["eval_sets"]
+        f"{s.name} ({', '.join(f'{k}={v}' for k, v in s.overrides.items()) or 'preset config'}; "
+        f"{', '.join(s.conditions) if s.conditions else 'every condition'})"
+        for s in spec.eval_sets
+        if s.name in set(cells["eval_set"])
     )
-    expected = len(spec["variants"]) * len(spec["seeds"]) * int(np.prod([len(v) for v in spec["grid"].values()]))
+    presets = sorted({r["preset"] for r in records})
+    overrides = f", with {spec.overrides}" if spec.overrides else ""
     facts = [
-        f"preset: {spec['preset']}" + (f", with {spec['overrides']}" if spec["overrides"] else ""),
-        f"variants: {', '.join(spec['variants'])}; training seeds {spec['seeds']} (finished per variant: {seeds_per_variant})",
-        f"trials: {len(records)} of {expected} finished" + (f"; grid {spec['grid']}" if spec["grid"] else ""),
-        f"budget: {records[0]['budget_agent_steps']:,} agent-steps per trial "
-        f"(trained: {', '.join(f'{t:,}' for t in trained)}; SB3 finishes the last rollout)",
-        f"evaluation: {spec['eval_episodes']} episodes per cell, env seeds {spec['eval_seed']}.."
-        f"{spec['eval_seed'] + spec['eval_episodes'] - 1} (held out), "
-        f"{'mean' if spec['deterministic'] else 'sampled'} actions; cells: {eval_sets}",
+        f"preset: {', '.join(presets)}{overrides}",
+        f"variants and training seeds finished: {seeds_per_variant}",
+        f"trials: {len(records)} finished of the {spec.n_trials} planned in sweep.json"
+        + (f"; grid {dict(spec.grid)}" if spec.grid else ""),
+        f"budget: {_counts(pd.Series([r['budget_agent_steps'] for r in records]))} agent-steps per trial "
+        f"(trained: {_counts(pd.Series([r['trained_agent_steps'] for r in records]))}; SB3 finishes the last rollout)",
+        f"evaluation: {_counts(scores['episodes'])} episodes per cell and run (scores.csv), env seeds "
+        f"{episodes['seed'].min()}..{episodes['seed'].max()} (episodes.csv), "
+        f"{' and '.join(sorted({'mean' if r['deterministic'] else 'sampled' for r in records}))} actions; cells: {eval_sets}",
         "intervals: across training seeds, a run's score in a cell is its mean over the cell's episodes; IQM and mean "
         "with 95 % stratified percentile-bootstrap CIs (10,000 replicates, our NumPy port of rliable's method)",
         f"trial commits: {', '.join(sorted({r['commit'] for r in records}))}",
         f"trial machines: {'; '.join(machines)}",
+        "trial nodes: " + "; ".join(f"{node}: {', '.join(sorted(ran))}" for node, ran in nodes.items()),
         f"train wall time per trial: {np.median([r['train_seconds'] for r in records]):.0f} s (median)",
     ]
     body = ["## Across-seed intervals", "", markdown, "## Figures", "", *(f"![{name}]({name})" for name in figures), ""]
-    write_run_record(output, f"Sweep: preset `{spec['preset']}`", commit or records[0]["commit"], facts, body)
+    write_run_record(output, f"Sweep: preset `{spec.preset}`", commit or records[0]["commit"], facts, body)
     return aggregate

@@ -2,75 +2,47 @@
 
 Layout of ``output`` (default ``runs/sweeps/<preset>/``)::
 
-    sweep.json                 what was asked (preset, variants, seeds, grid, overrides, evaluation cells)
-    trials/<trial_id>/         one finished trial: model.zip, trial.json (config, commit, machine), episodes.csv
-                               (one row per evaluation episode), progress.csv (one row per rollout)
-    ray/                       Ray Tune's experiment folders (its checkpoints are where finished trials come from)
+    sweep.json                 the :class:`~.spec.SweepSpec` (preset, variants, seeds, grid, overrides, evaluation cells)
+    .sweep.lock                held (``fcntl.flock``) by the sweep running in this folder; free when none runs
+    trials/<trial_id>/         one finished trial: model.zip, trial.json (config, commit, machine, Ray node),
+                               episodes.csv (one row per evaluation episode), progress.csv (one row per rollout)
+    running/<trial_id>/        a trial in progress: its mid-trial checkpoints, continued by ``resume=True``
+    ray/                       Ray Tune's experiment folders (``storage`` moves them elsewhere)
     episodes.csv, scores.csv   all trials' episodes; one row per trial and evaluation cell (the runs' scores)
     aggregate.csv, aggregate.md, *.png, run.md    the across-seed intervals (see :mod:`.report`)
 
-A trial is finished when ``trials/<trial_id>/trial.json`` exists: it is copied there, complete, from the checkpoint
-the trial reports to Tune when it is done. ``resume=True`` runs only the trials that are not finished.
+A trial is finished when ``trials/<trial_id>/`` holds its complete results: they are copied there, whole, from the
+checkpoint the trial reports to Tune when it is done. ``resume=True`` runs only the trials that are not finished.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import itertools
+import fcntl
 import json
 import os
-import re
 import shutil
 import socket
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from sb3_latentswarm.config import SwarmConfig
-from sb3_latentswarm.experiments.trial import (
-    EVAL_SEED_BASE,
-    VARIANTS,
-    EvalSet,
-    all_conditions,
-    default_eval_sets,
-    finished_trial_dirs,
-    train_and_evaluate,
-    training_env_seed,
-    trial_preset,
-)
-from sb3_latentswarm.presets import get_preset, override_targets
+from sb3_latentswarm.common.atomic import write_json
+from sb3_latentswarm.common.checks import check_float
+from sb3_latentswarm.experiments.report import TRIAL_FILES, finished_trials
+from sb3_latentswarm.experiments.spec import SweepSpec, trial_id
+from sb3_latentswarm.experiments.trial import train_and_evaluate
 
-_CONFIG_FIELDS = tuple(f.name for f in dataclasses.fields(SwarmConfig) if f.name != "extra")
+__all__ = ["check_cluster", "check_storage", "plan_trials", "run_sweep", "select_trials", "sweep_lock"]
+
+LOCK_NAME = ".sweep.lock"
+"""The lock file of a sweep folder."""
 
 
-def _check_fields(names: Sequence[str], what: str) -> None:
-    """Evaluation cells change the env only: their names must be SwarmConfig fields."""
-    unknown = [name for name in names if name not in _CONFIG_FIELDS]
-    if unknown:
-        raise ValueError(f"{what}: unknown SwarmConfig field(s) {unknown}; fields: {', '.join(sorted(_CONFIG_FIELDS))}")
-
-
-def _check_settings(names: Sequence[str], what: str) -> None:
-    """Training settings (``--set``, ``--grid``) may be anything ``Preset.with_overrides`` routes."""
-    targets = override_targets()
-    unknown = [name for name in names if not any(name in settings for settings in targets.values())]
-    if unknown:
-        valid = "; ".join(f"{target}: {', '.join(settings)}" for target, settings in targets.items())
-        raise ValueError(f"{what}: unknown setting(s) {unknown}; valid settings are {valid}")
-
-
-def trial_id(variant: str, train_seed: int, grid_point: dict[str, Any]) -> str:
-    """``proposed-seed0`` or ``proposed-seed0-p_fail=0.5``: a folder name (characters outside ``[\\w.=-]`` become ``_``)."""
-    parts = [variant, f"seed{train_seed}", *(f"{name}={value}" for name, value in grid_point.items())]
-    return re.sub(r"[^\w.=-]", "_", "-".join(parts))
-
-
-def plan_trials(spec: dict[str, Any], commit: str) -> list[dict[str, Any]]:
+def plan_trials(spec: SweepSpec, commit: str) -> list[dict[str, Any]]:
     """Every (variant, training seed, grid point) of ``spec``, as the trial dicts :func:`train_and_evaluate` takes."""
-    grid = spec["grid"]
-    points = [dict(zip(grid, values)) for values in itertools.product(*grid.values())]
     return [
         {
             "trial_id": trial_id(variant, seed, point),
@@ -81,94 +53,10 @@ def plan_trials(spec: dict[str, Any], commit: str) -> list[dict[str, Any]]:
             "commit": commit,
         }
         # seed-major: an interrupted sweep has every variant at its first seeds, not all seeds of the first variant
-        for point in points
-        for seed in spec["seeds"]
-        for variant in spec["variants"]
+        for point in spec.grid_points()
+        for seed in spec.seeds
+        for variant in spec.variants
     ]
-
-
-def make_spec(
-    preset: str,
-    seeds: int,
-    variants: Sequence[str] = VARIANTS,
-    grid: dict[str, Sequence[Any]] | None = None,
-    overrides: dict[str, Any] | None = None,
-    eval_sets: Sequence[EvalSet] | None = None,
-    extra_eval_sets: Sequence[EvalSet] = (),
-    eval_episodes: int | None = None,
-    eval_seed: int = EVAL_SEED_BASE,
-    deterministic: bool = True,
-) -> dict[str, Any]:
-    """Validate a sweep's arguments (see :func:`run_sweep`) and return its JSON-able spec; nothing is trained."""
-    get_preset(preset)  # an unknown name fails here
-    if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1:
-        raise ValueError(f"--seeds must be an int >= 1, got {seeds!r}")
-    variants = list(dict.fromkeys(variants))
-    unknown = [v for v in variants if v not in VARIANTS]
-    if unknown or not variants:
-        raise ValueError(f"--variant: unknown variant(s) {unknown or variants}; choose from {list(VARIANTS)}")
-    grid = {name: list(values) for name, values in (grid or {}).items()}
-    overrides = dict(overrides or {})
-    _check_settings(list(grid), "--grid")
-    _check_settings(list(overrides), "--set")
-    empty = [name for name, values in grid.items() if not values]
-    if empty:
-        raise ValueError(f"--grid: no values for {empty}")
-    base = trial_preset(preset, overrides, {})
-    if eval_episodes is None:
-        eval_episodes = base.eval_episodes
-    if isinstance(eval_episodes, bool) or not isinstance(eval_episodes, int) or eval_episodes < 1:
-        raise ValueError(f"--eval-episodes must be an int >= 1, got {eval_episodes!r}")
-    eval_sets = [*(default_eval_sets(base) if eval_sets is None else eval_sets), *extra_eval_sets]
-    names = [s.name for s in eval_sets]
-    if len(set(names)) != len(names):
-        raise ValueError(f"evaluation set names must be unique, got {names}")
-    for eval_set in eval_sets:
-        _check_fields(list(eval_set.overrides), f"--eval-set {eval_set.name}")
-        for condition in eval_set.conditions or ():
-            if condition not in all_conditions():
-                raise ValueError(
-                    f"--eval-set {eval_set.name}: unknown condition {condition!r}; allowed: {list(all_conditions())}"
-                )
-    # build every trial's config and every evaluation cell's config now, so a bad value fails before any training
-    presets = [trial_preset(preset, overrides, dict(zip(grid, values))) for values in itertools.product(*grid.values())]
-    for eval_set in eval_sets:
-        for point_preset in presets:
-            point_preset.config.replace(**eval_set.overrides)
-    largest_training_seed = training_env_seed(seeds, max(p.n_envs for p in presets))
-    if eval_seed < largest_training_seed:
-        raise ValueError(
-            f"eval_seed={eval_seed} overlaps the training env seeds (up to {largest_training_seed - 1}); use a larger one"
-        )
-    return {
-        "preset": preset,
-        "variants": variants,
-        "seeds": list(range(seeds)),
-        "grid": grid,
-        "overrides": overrides,
-        "eval_sets": [s.to_dict() for s in eval_sets],
-        "eval_episodes": eval_episodes,
-        "eval_seed": eval_seed,
-        "deterministic": deterministic,
-    }
-
-
-def check_address(address: str) -> None:
-    """Fail fast (``ValueError``) when ``address`` (``HOST:PORT``, ``ray://HOST:PORT`` or ``auto``) answers nothing."""
-    if address == "auto":
-        return  # ray.init finds the local cluster or raises ConnectionError at once
-    host, _, port = address.removeprefix("ray://").rpartition(":")
-    if not host or not port.isdigit():
-        raise ValueError(f"--address must be HOST:PORT, ray://HOST:PORT or auto, got {address!r}")
-    try:
-        socket.create_connection((host, int(port)), timeout=5.0).close()
-    except OSError as error:
-        raise ValueError(f"--address {address}: no Ray cluster answers there ({error})") from None
-
-
-def finished_trials(output: Path) -> set[str]:
-    """The ids of the trials whose results are complete in ``output / "trials"``."""
-    return {path.name for path in finished_trial_dirs(output)}
 
 
 def select_trials(trials: list[dict[str, Any]], done: set[str], only: Sequence[str] | None = None) -> list[dict[str, Any]]:
@@ -181,16 +69,50 @@ def select_trials(trials: list[dict[str, Any]], done: set[str], only: Sequence[s
     return [t for t in trials if t["trial_id"] not in done and (only is None or t["trial_id"] in only)]
 
 
-def _check_output(output: Path, spec: dict[str, Any], resume: bool) -> None:
+# ---------------------------------------------------------------------------------------------- the sweep folder
+@contextmanager
+def sweep_lock(output: Path) -> Iterator[None]:
+    """Hold the sweep folder ``output`` for this process: a second sweep into it refuses while this one runs.
+
+    The lock is ``fcntl.flock`` on ``output/.sweep.lock``: the kernel releases it when the holder exits, however it
+    exits, so a lock left by a killed sweep is never in the way (the file stays; its content only names the last
+    holder). ``flock`` holds between processes of one machine, and on NFS v4 between machines.
+
+    :raises ValueError: when another process holds the folder, naming it (pid, host, start time)
+    """
+    output.mkdir(parents=True, exist_ok=True)
+    path = output / LOCK_NAME
+    handle = open(path, "a+")
+    try:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.seek(0)
+            holder = handle.read().strip() or "another process"
+            raise ValueError(
+                f"--output {output} is in use by another sweep ({holder}); wait for it to end, or choose another --output"
+            ) from None
+        handle.seek(0)
+        handle.truncate()
+        handle.write(f"pid {os.getpid()} on {socket.gethostname()} since {time.strftime('%Y-%m-%d %H:%M:%S')}\n")
+        handle.flush()
+        yield
+    finally:
+        handle.close()  # releases the lock
+
+
+def _check_output(output: Path, spec: SweepSpec, resume: bool) -> None:
+    """Refuse a folder that holds another sweep, or this one without ``resume``."""
     saved_path = output / "sweep.json"
     if not saved_path.exists():
-        if finished_trials(output):
+        if (output / "trials").is_dir() and any((output / "trials").iterdir()):
             raise ValueError(f"--output {output} holds trials but no sweep.json; choose another --output")
         return
     if not resume:
         raise ValueError(f"--output {output} already holds a sweep; pass --resume to continue it, or another --output")
     saved = json.loads(saved_path.read_text())
-    differ = sorted(key for key in spec.keys() | saved.keys() if spec.get(key) != saved.get(key))
+    asked = json.loads(json.dumps(spec.to_dict()))
+    differ = sorted(key for key in asked.keys() | saved.keys() if asked.get(key) != saved.get(key))
     if differ:
         raise ValueError(
             f"--resume: this sweep differs from the one in {output} in {differ} "
@@ -198,20 +120,165 @@ def _check_output(output: Path, spec: dict[str, Any], resume: bool) -> None:
         )
 
 
-def _run_trial_in_tune(config: dict[str, Any], trials: dict[str, dict[str, Any]], threads: int) -> None:
-    """The Ray Tune trainable: one trial, progress reported per rollout, results reported as the final checkpoint."""
+def _plan(
+    output: Path, spec: SweepSpec, resume: bool, commit: str, only: Sequence[str] | None
+) -> tuple[list[dict[str, Any]], set[str], list[dict[str, Any]]]:
+    """Check ``output`` (read only) and return (all trials, the finished ids, the trials to run now)."""
+    _check_output(output, spec, resume)
+    trials = plan_trials(spec, commit)
+    done = set(finished_trials(output, spec)) if (output / "sweep.json").exists() else set()
+    return trials, done, select_trials(trials, done, only)
+
+
+# ---------------------------------------------------------------------------------------------- the cluster
+def _auth_metadata() -> tuple[tuple[str, str], ...] | None:
+    """The gRPC header carrying this machine's Ray token (``RAY_AUTH_TOKEN``, ``RAY_AUTH_TOKEN_PATH`` or
+    ``~/.ray/auth_token``, as Ray reads them), or ``None`` when there is none."""
+    try:
+        from ray._raylet import AuthenticationTokenLoader  # type: ignore[attr-defined]
+    except ImportError:  # a Ray before token authentication (2.5x): it has no tokens
+        return None
+    loader = AuthenticationTokenLoader.instance()
+    if not loader.has_token(ignore_auth_mode=True):
+        return None
+    return tuple(loader.get_token_for_http_header().items())
+
+
+def check_cluster(address: str) -> None:
+    """Fail fast, in one line, when the Ray cluster at ``address`` cannot be used from here, saying which of the
+    address or the token is wrong (a Ray version mismatch is reported by :func:`run_sweep` when it connects).
+
+    ``address`` is ``HOST:PORT`` (the head's GCS port, 6379 by default), ``ray://HOST:PORT`` (Ray Client, checked for
+    an answer only) or ``auto``. Ray >= 2.60 clusters started with ``ray start`` ask for a token when the head found
+    one (``ray get-auth-token --generate``, or one ``ray.init()`` left in ``~/.ray/auth_token``). A cluster that asks
+    for one, when this machine holds a token it accepts, is joined in token mode (``RAY_AUTH_MODE=token``, what
+    ``ray start`` sets on the head), unless ``RAY_AUTH_MODE`` is set already.
+
+    :raises ValueError: ``--address ...: <what is wrong>; <what to do>``
+    """
+    if address == "auto":
+        return  # ray.init finds the local cluster or raises ConnectionError at once
+    client = address.startswith("ray://")
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        raise ValueError(f"--address must be HOST:PORT, ray://HOST:PORT or auto, got {address!r}")
+    try:
+        socket.create_connection((host, int(port)), timeout=5.0).close()
+    except OSError as error:
+        raise ValueError(f"--address {address}: address: no Ray cluster answers there ({error})") from None
+    if client:
+        return
+    import grpc
+    from ray.core.generated import gcs_service_pb2, gcs_service_pb2_grpc
+
+    def ask(metadata: tuple[tuple[str, str], ...]) -> grpc.StatusCode:
+        with grpc.insecure_channel(f"{host}:{port}") as channel:
+            try:
+                stub = gcs_service_pb2_grpc.NodeInfoGcsServiceStub(channel)
+                stub.GetClusterId(gcs_service_pb2.GetClusterIdRequest(), timeout=10.0, metadata=metadata)  # type: ignore[attr-defined]
+            except grpc.RpcError as error:
+                return error.code()
+        return grpc.StatusCode.OK
+
+    status = ask(())
+    if status == grpc.StatusCode.OK:
+        return
+    if status != grpc.StatusCode.UNAUTHENTICATED:
+        raise ValueError(f"--address {address}: address: this is not a Ray head's GCS port (gRPC {status.name})")
+    metadata = _auth_metadata()
+    remedy = (
+        "copy the head's token (`ray get-auth-token` there) into RAY_AUTH_TOKEN or ~/.ray/auth_token here, "
+        "or restart the cluster with RAY_AUTH_MODE=disabled on a private network"
+    )
+    if metadata is None:
+        raise ValueError(f"--address {address}: token: the cluster asks for a Ray auth token and none is set here; {remedy}")
+    if ask(metadata) != grpc.StatusCode.OK:
+        raise ValueError(f"--address {address}: token: the cluster refuses this machine's Ray auth token; {remedy}")
+    mode = os.environ.get("RAY_AUTH_MODE")
+    if mode is None:
+        from ray._private.authentication.authentication_token_setup import _enable_token_auth
+        from ray._raylet import AuthenticationTokenLoader  # type: ignore[attr-defined]
+
+        _enable_token_auth()  # RAY_AUTH_MODE=token for this process and its children, as `ray start` does
+        AuthenticationTokenLoader.instance().reset_cache()
+    elif mode.lower() != "token":
+        raise ValueError(f"--address {address}: token: the cluster asks for a token but RAY_AUTH_MODE={mode}; unset it")
+
+
+def _connect(address: str | None, verbose: int) -> Any:
+    """``ray.init`` with a one-line error for a version mismatch or a refused connection."""
+    import ray
+
+    try:
+        return ray.init(address=address, include_dashboard=False, configure_logging=False, log_to_driver=verbose > 1)
+    except (ConnectionError, RuntimeError) as error:
+        ray.shutdown()  # a failed connection leaves a half-made worker behind
+        text = " ".join(str(error).split()) or type(error).__name__  # Ray's messages span several lines
+        if "version mismatch" in text.lower():
+            raise ValueError(
+                f"--address {address}: version: {text}; use the cluster's Ray and Python versions on this machine"
+            ) from None
+        raise ValueError(f"--address {address}: cannot connect to Ray ({text})") from None
+
+
+def check_storage(storage: str | None, output: Path) -> str:
+    """The ``storage_path`` of Ray Tune: ``storage`` (a URI such as ``s3://bucket/sweeps``, ``gs://...``,
+    ``file:///shared/sweeps``, or a path every node shares), or ``output/ray`` by default.
+
+    A small probe file is written there and removed, so a URI that cannot be opened fails before any trial starts.
+
+    :raises ValueError: ``--storage URI: cannot write there (...)``
+    """
+    if storage is None:
+        return str((output / "ray").resolve())
+    import pyarrow.fs
+
+    try:
+        filesystem, path = pyarrow.fs.FileSystem.from_uri(storage if "://" in storage else str(Path(storage).resolve()))
+        probe = f"{path.rstrip('/')}/.sb3-latentswarm-probe-{os.getpid()}"
+        filesystem.create_dir(path, recursive=True)
+        with filesystem.open_output_stream(probe) as stream:
+            stream.write(b"probe")
+        filesystem.delete_file(probe)
+    except (OSError, ValueError, ImportError) as error:
+        first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise ValueError(f"--storage {storage}: cannot write there ({first_line})") from None
+    return storage if "://" in storage else str(Path(storage).resolve())
+
+
+# ---------------------------------------------------------------------------------------------- the trials on Tune
+def _run_trial_in_tune(config: dict[str, Any], trials: dict[str, dict[str, Any]], threads: int, running: str) -> None:
+    """The Ray Tune trainable: one trial, progress reported per rollout, results reported as the final checkpoint.
+
+    The trial works in ``running/<trial_id>/`` of the sweep folder, where :func:`train_and_evaluate` keeps its
+    mid-trial checkpoints: a rerun into the same folder continues from the newest one, so a resumed sweep continues
+    an interrupted trial. A node that does not see the sweep folder (no shared file system) works in a temporary
+    folder, and an interrupted trial there starts again. Only the results (:data:`~.report.TRIAL_FILES`) travel
+    back to the driver, as the trial's Tune checkpoint.
+    """
+    import ray
     import torch
     from ray import tune
 
     trial = trials[config["trial_id"]]
     torch.set_num_threads(threads)
-    work = Path(tempfile.mkdtemp(prefix=f"{trial['trial_id']}-"))
+    shared = Path(running).parent.is_dir()  # the sweep folder exists here: this machine, or a shared file system
+    work = Path(running) / trial["trial_id"] if shared else Path(tempfile.mkdtemp(prefix=f"{trial['trial_id']}-"))
+    work.mkdir(parents=True, exist_ok=True)
+    record = train_and_evaluate(trial, work, report=tune.report)
+    # the node that ran it, for run.md (trial.py records the host name as "node")
+    record = {**record, "ray_node_id": ray.get_runtime_context().get_node_id()}
+    write_json(work / "trial.json", record)
+    final = {"agent_steps": float(record["trained_agent_steps"]), "eval_coverage": record["eval_coverage"]}
+    results = Path(tempfile.mkdtemp(prefix=f"{trial['trial_id']}-results-"))
     try:
-        record = train_and_evaluate(trial, work, report=tune.report)
-        final = {"agent_steps": float(record["trained_agent_steps"]), "eval_coverage": record["eval_coverage"]}
-        tune.report(final, checkpoint=tune.Checkpoint.from_directory(str(work)))  # persisted before it returns
+        for name in TRIAL_FILES:
+            shutil.copy2(work / name, results / name)
+        tune.report(final, checkpoint=tune.Checkpoint.from_directory(str(results)))  # persisted before it returns
     finally:
-        shutil.rmtree(work, ignore_errors=True)
+        shutil.rmtree(results, ignore_errors=True)
+        if not shared:
+            shutil.rmtree(work, ignore_errors=True)
 
 
 def _collect(checkpoint: Any, destination: Path) -> None:
@@ -221,13 +288,13 @@ def _collect(checkpoint: Any, destination: Path) -> None:
     checkpoint.to_directory(str(partial))
     shutil.rmtree(destination, ignore_errors=True)
     partial.rename(destination)
+    shutil.rmtree(destination.parent.parent / "running" / destination.name, ignore_errors=True)
 
 
-def _run_tune(trials: list[dict[str, Any]], output: Path, resources: dict[str, float], verbose: int) -> list[str]:
-    """Run ``trials`` on the connected Ray cluster; collect each into ``output/trials`` as it completes.
-
-    :return: the ids of the trials that did not finish (failed, or not run after an interruption)
-    """
+def _run_tune(
+    trials: list[dict[str, Any]], output: Path, storage_path: str, resources: dict[str, float], verbose: int
+) -> None:
+    """Run ``trials`` on the connected Ray cluster; collect each into ``output/trials`` as it completes."""
     from ray import tune
 
     trials_dir = output / "trials"
@@ -239,7 +306,10 @@ def _run_tune(trials: list[dict[str, Any]], output: Path, resources: dict[str, f
 
     # Tune's config holds only the trial id (its console shows it); the trials travel once, through the object store
     trainable = tune.with_parameters(
-        _run_trial_in_tune, trials={trial["trial_id"]: trial for trial in trials}, threads=max(1, int(resources["cpu"]))
+        _run_trial_in_tune,
+        trials={trial["trial_id"]: trial for trial in trials},
+        threads=max(1, int(resources["cpu"])),
+        running=str((output / "running").resolve()),
     )
     tuner = tune.Tuner(
         tune.with_resources(trainable, resources),
@@ -251,31 +321,23 @@ def _run_tune(trials: list[dict[str, Any]], output: Path, resources: dict[str, f
         ),
         run_config=tune.RunConfig(
             name=time.strftime("sweep-%Y%m%d-%H%M%S"),
-            storage_path=str((output / "ray").resolve()),
+            storage_path=storage_path,
             callbacks=[CollectFinished()],
             verbose=verbose,
         ),
     )
-    for result in tuner.fit():  # after an interruption, trials that never started have no config
+    results = tuner.fit()
+    for result in (results[i] for i in range(len(results))):  # trials that never started have no config
         name = (result.config or {}).get("trial_id")
         if name and result.error is None and result.checkpoint is not None and not (trials_dir / name).exists():
             _collect(result.checkpoint, trials_dir / name)
-    finished = finished_trials(output)
-    return [trial["trial_id"] for trial in trials if trial["trial_id"] not in finished]
 
 
 def run_sweep(
-    preset: str,
-    seeds: int,
-    variants: Sequence[str] = VARIANTS,
-    grid: dict[str, Sequence[Any]] | None = None,
-    overrides: dict[str, Any] | None = None,
-    eval_sets: Sequence[EvalSet] | None = None,
-    extra_eval_sets: Sequence[EvalSet] = (),
-    eval_episodes: int | None = None,
-    eval_seed: int = EVAL_SEED_BASE,
-    deterministic: bool = True,
+    spec: SweepSpec,
+    *,
     address: str | None = None,
+    storage: str | None = None,
     cpus_per_trial: float = 1.0,
     gpus_per_trial: float = 0.0,
     output: str | Path | None = None,
@@ -283,73 +345,63 @@ def run_sweep(
     verbose: int = 1,
     only: Sequence[str] | None = None,
 ) -> Path:
-    """Train ``seeds`` training seeds of every variant at every grid point on Ray Tune, evaluate each trained model on
-    held-out seeds, and write the per-run scores and the across-seed intervals into ``output``.
+    """Train every trial of ``spec`` (training seeds x variants x grid points) on Ray Tune, evaluate each trained model
+    on held-out seeds, and write the per-run scores and the across-seed intervals into ``output``.
 
-    :param preset: a preset name (:data:`sb3_latentswarm.presets.PRESETS`): env, algorithm settings and the budget of
-        agent-steps, the same for every variant
-    :param seeds: number of training seeds, ``0 .. seeds - 1``
-    :param variants: from :data:`VARIANTS`: ``proposed`` (LatentSwarmPPO), ``no_comm`` (LatentSwarmPPO trained with
-        ``link_mode="none"``), ``independent`` (RecurrentPPO on each UAV's own observation)
-    :param grid: ``{SwarmConfig field: values}``; every combination is a grid point, trained and evaluated with it
-    :param overrides: ``{SwarmConfig field: value}`` applied to the preset for every trial
-    :param eval_sets: the evaluation cells (default: :func:`default_eval_sets`, Table I's conditions and p_f sweep)
-    :param extra_eval_sets: cells added to ``eval_sets``, e.g. ``EvalSet("burst10", {"mean_outage_steps": 10})``
-    :param eval_episodes: episodes per cell (default: the preset's), env seeds ``eval_seed ..``
-    :param deterministic: evaluate with the mean action (``False``: sampled actions)
-    :param address: a running Ray cluster (``HOST:PORT``, ``ray://HOST:PORT``, ``auto``); ``None`` starts Ray here
-        with every CPU of this machine
+    :param spec: the sweep, from :meth:`SweepSpec.create <sb3_latentswarm.experiments.SweepSpec.create>`
+    :param address: a running Ray cluster (``HOST:PORT``, ``ray://HOST:PORT``, ``auto``); ``None`` uses
+        ``RAY_ADDRESS`` or starts Ray here with every CPU of this machine. See :func:`check_cluster` for tokens
+    :param storage: Ray Tune's ``storage_path`` (:func:`check_storage`): a URI (``s3://``, ``gs://``, ``file://``) or
+        a path every node can write; default ``output/ray``, enough on one machine
     :param cpus_per_trial: CPUs Ray reserves per trial (its torch threads: the integer part, at least 1)
     :param gpus_per_trial: GPUs Ray reserves per trial (a fraction shares one); with 0, trials train on the CPU
-    :param output: result folder (default ``runs/sweeps/<preset>``)
-    :param resume: continue the sweep in ``output``: finished trials are kept, not retrained
+    :param output: result folder (default ``runs/sweeps/<preset>``), locked while the sweep runs (:func:`sweep_lock`)
+    :param resume: continue the sweep in ``output``: finished trials are kept, interrupted ones continue from their
+        last checkpoint in ``running/``
     :param verbose: Ray Tune's console verbosity (0 silent, 1 status table, 2 also trial results)
-    :param only: run only these trial ids (e.g. ``proposed-seed2``); the others stay pending for a later ``resume``.
-        Lets the cheap trials go first, or splits one sweep over several machines sharing ``output``
+    :param only: run only these trial ids (e.g. ``proposed-seed2``); the others stay pending for a later ``resume``
     :return: ``output``
-    :raises ValueError: on bad arguments or an unreachable ``address``, before anything is trained
+    :raises ValueError: on bad arguments, a folder in use or holding another sweep, a damaged or stray trial folder, an
+        unreachable cluster or storage, before anything is trained
     :raises RuntimeError: when trials failed (the finished ones are aggregated; ``resume=True`` reruns the rest)
     """
     from sb3_latentswarm.common.run_record import git_commit
     from sb3_latentswarm.experiments.report import write_report
 
+    if not isinstance(spec, SweepSpec):
+        raise TypeError(f"spec must be a SweepSpec (SweepSpec.create(...)), got {type(spec).__name__}")
+    check_float("--cpus-per-trial", cpus_per_trial, low=0.0, low_open=True)
+    check_float("--gpus-per-trial", gpus_per_trial, low=0.0)
     commit = git_commit()
-    spec = make_spec(
-        preset, seeds, variants, grid, overrides, eval_sets, extra_eval_sets, eval_episodes, eval_seed, deterministic
-    )
-    if not cpus_per_trial > 0:
-        raise ValueError(f"--cpus-per-trial must be > 0, got {cpus_per_trial!r}")
-    if not gpus_per_trial >= 0:
-        raise ValueError(f"--gpus-per-trial must be >= 0, got {gpus_per_trial!r}")
-    output = Path(output or Path("runs") / "sweeps" / preset)
-    _check_output(output, spec, resume)
+    output = Path(output or Path("runs") / "sweeps" / spec.preset)
+    if output.exists() and not output.is_dir():
+        raise ValueError(f"--output {output} is a file, not a folder")
+    _plan(output, spec, resume, commit, only)  # every check that reads the folder, before it is created or locked
     if address is not None:
-        check_address(address)
-    trials = plan_trials(spec, commit)
-    done = finished_trials(output)
-    pending = select_trials(trials, done, only)
-    print(f"Sweep on preset {preset!r}: {len(trials)} trials, {len(done)} already finished, {len(pending)} to run now")
-    failed: list[str] = []
-    if pending:
-        import ray
+        check_cluster(address)
+    storage_path = check_storage(storage, output)
+    with sweep_lock(output):
+        trials, done, pending = _plan(output, spec, resume, commit, only)  # again: another sweep may have ended
+        print(
+            f"Sweep on preset {spec.preset!r}: {len(trials)} trials, {len(done)} already finished, {len(pending)} to run now"
+        )
+        if pending:
+            import ray
 
-        # Ray starts its workers at nice 15, so trials stall behind any other work on the machine (measured: 30 % of a
-        # core each, updates 10x slower, next to two busy processes); a sweep's trials are the work. A cluster keeps
-        # the niceness its `ray start` gave it.
-        os.environ.setdefault("RAY_worker_niceness", "0")
-        try:
-            context = ray.init(address=address, include_dashboard=False, configure_logging=False, log_to_driver=verbose > 1)
-        except (ConnectionError, RuntimeError) as error:
-            raise ValueError(f"--address {address}: cannot connect to Ray ({error})") from None
-        output.mkdir(parents=True, exist_ok=True)
-        (output / "sweep.json").write_text(json.dumps(spec, indent=2))
-        try:
-            print(f"Ray: {ray.cluster_resources().get('CPU', 0):g} CPUs at {context.address_info.get('address')}")
-            resources = {"cpu": cpus_per_trial, "gpu": gpus_per_trial}
-            failed = _run_tune(pending, output, resources, verbose)
-        finally:
-            ray.shutdown()
-    write_report(output, commit)
+            # Ray starts its workers at nice 15, so trials stall behind any other work on the machine (measured: 30 % of
+            # a core each, updates 10x slower, next to two busy processes); a sweep's trials are the work. A cluster
+            # keeps the niceness its `ray start` gave it.
+            os.environ.setdefault("RAY_worker_niceness", "0")
+            context = _connect(address, verbose)
+            spec.save(output / "sweep.json")
+            try:
+                print(f"Ray: {ray.cluster_resources().get('CPU', 0):g} CPUs at {context.address_info.get('address')}")
+                _run_tune(pending, output, storage_path, {"cpu": cpus_per_trial, "gpu": gpus_per_trial}, verbose)
+            finally:
+                ray.shutdown()
+        finished = finished_trials(output, spec)
+        write_report(output, commit)
+    failed = [trial["trial_id"] for trial in pending if trial["trial_id"] not in finished]
     if failed:
         raise RuntimeError(f"{len(failed)} trial(s) failed: {failed}; rerun with --resume to retry them")
     return output

@@ -82,6 +82,12 @@ def trial_preset(preset_name: str, overrides: dict[str, Any], grid_point: dict[s
     return get_preset(preset_name).with_overrides(**{**overrides, **grid_point})
 
 
+def grid_labels(grid_point: dict[str, Any]) -> dict[str, Any]:
+    """The grid point as table columns, ``grid.<name>``: apart from the evaluation's own columns (``p_fail`` is also
+    the p_f of an evaluation cell)."""
+    return {f"grid.{name}": value for name, value in grid_point.items()}
+
+
 def training_env_seed(train_seed: int, n_envs: int) -> int:
     """Base seed of the training env copies of training seed ``train_seed`` (copy ``c``: base + ``c``)."""
     return train_seed * n_envs
@@ -192,8 +198,8 @@ def train_and_evaluate(
 ) -> dict[str, Any]:
     """Train the trial's variant, save ``model.zip``, evaluate it, and write its raw results into ``output``.
 
-    :param trial: ``trial_id``, ``variant``, ``train_seed``, ``grid_point`` and the sweep's ``spec`` (preset name,
-        overrides, eval sets, eval episodes and seed, deterministic) and ``commit``; see
+    :param trial: ``trial_id``, ``variant``, ``train_seed``, ``grid_point``, the sweep's
+        :class:`~sb3_latentswarm.experiments.spec.SweepSpec` ``spec`` and ``commit``; see
         :func:`sb3_latentswarm.experiments.sweep.plan_trials`
     :param report: called with the progress metrics after every rollout
     :return: the trial record (also written as ``trial.json``); ``episodes.csv`` holds one row per evaluation
@@ -206,7 +212,7 @@ def train_and_evaluate(
 
     spec = trial["spec"]
     variant, train_seed, grid_point = trial["variant"], int(trial["train_seed"]), dict(trial["grid_point"])
-    preset = trial_preset(spec["preset"], spec["overrides"], grid_point)
+    preset = trial_preset(spec.preset, spec.overrides, grid_point)
     # no_comm trains the same architecture with every link down; it is evaluated on the same env as the others
     train_config = preset.config.replace(link_mode="none") if variant == "no_comm" else preset.config
     env_seed = training_env_seed(train_seed, preset.n_envs)
@@ -228,12 +234,11 @@ def train_and_evaluate(
     model.save(output / "model.zip")
 
     start = time.perf_counter()
-    eval_sets = [EvalSet.from_dict(s) for s in spec["eval_sets"]]
     episodes = evaluate_sets(
-        model, variant, preset.config, eval_sets, spec["eval_episodes"], spec["eval_seed"], spec["deterministic"]
+        model, variant, preset.config, spec.eval_sets, spec.eval_episodes, spec.eval_seed, spec.deterministic
     )
     eval_seconds = time.perf_counter() - start
-    labels = {"trial_id": trial["trial_id"], "variant": variant, "train_seed": train_seed, **grid_point}
+    labels = {"trial_id": trial["trial_id"], "variant": variant, "train_seed": train_seed, **grid_labels(grid_point)}
     episodes = episodes.assign(**labels)
     episodes.to_csv(output / "episodes.csv", index=False)
     pd.DataFrame(progress.rows).assign(**labels).to_csv(output / "progress.csv", index=False)
@@ -241,7 +246,7 @@ def train_and_evaluate(
     record = {
         **labels,
         "grid_point": grid_point,
-        "preset": spec["preset"],
+        "preset": spec.preset,
         "commit": trial["commit"],
         "machine": machine_summary(model.device if variant != "independent" else model.model.device),
         "node": platform.node(),
@@ -252,15 +257,15 @@ def train_and_evaluate(
         else preset.independent_ppo_kwargs(),
         "n_envs": preset.n_envs,
         "training_env_seeds": [env_seed, env_seed + preset.n_envs - 1],
-        "eval_env_seeds": [spec["eval_seed"], spec["eval_seed"] + spec["eval_episodes"] - 1],
+        "eval_env_seeds": [spec.eval_seed, spec.eval_seed + spec.eval_episodes - 1],
         "budget_agent_steps": preset.total_timesteps,
         "trained_agent_steps": int(trained_steps),
         "train_seconds": train_seconds,
         "eval_seconds": eval_seconds,
-        "eval_sets": spec["eval_sets"],
-        "deterministic": spec["deterministic"],
+        "eval_sets": [s.to_dict() for s in spec.eval_sets],
+        "deterministic": spec.deterministic,
         # the first cell's proposed-condition means, for Tune's console
-        "eval_coverage": float(episodes["coverage"].iloc[: spec["eval_episodes"]].mean()),
+        "eval_coverage": float(episodes["coverage"].iloc[: spec.eval_episodes].mean()),
     }
     (output / "trial.json").write_text(json.dumps(record, indent=2, default=repr))
     return record
@@ -278,6 +283,7 @@ __all__ = [
     "default_eval_sets",
     "evaluate_sets",
     "finished_trial_dirs",
+    "grid_labels",
     "run_scores",
     "train_and_evaluate",
     "trial_preset",

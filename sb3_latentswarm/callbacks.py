@@ -16,7 +16,7 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_latentswarm.config import SwarmConfig
-from sb3_latentswarm.evaluation import CONDITIONS, evaluate
+from sb3_latentswarm.evaluation import HELD_OUT_SEED, check_condition, evaluate
 
 
 class SwarmEvalCallback(BaseCallback):
@@ -33,10 +33,11 @@ class SwarmEvalCallback(BaseCallback):
         n_agents`` of them)
     :param n_eval_episodes: swarm episodes per evaluation
     :param config: env config of the evaluation (default: the training env's, ``model.swarm_config``)
-    :param condition: one of :data:`~sb3_latentswarm.evaluation.CONDITIONS`
+    :param condition: a name of :data:`~sb3_latentswarm.evaluation.CONDITION_TABLE`
     :param p_fail: link failure probability (default: the config's)
     :param deterministic: act with the policy's mean action (``False``: sample it)
-    :param seed: episode ``k`` of every evaluation uses env seed ``seed + k`` (the same maps each time)
+    :param seed: episode ``k`` of every evaluation uses env seed ``seed + k`` (the same maps each time); default
+        :data:`~sb3_latentswarm.evaluation.HELD_OUT_SEED`, disjoint from the training env seeds
     :param best_model_save_path: if given, the model is saved there as ``best_model.zip`` whenever the mean coverage
         improves
     :param verbose: 1 prints one line per evaluation
@@ -50,15 +51,14 @@ class SwarmEvalCallback(BaseCallback):
         condition: str = "proposed",
         p_fail: float | None = None,
         deterministic: bool = True,
-        seed: int = 0,
+        seed: int = HELD_OUT_SEED,
         best_model_save_path: str | Path | None = None,
         verbose: int = 0,
     ):
         super().__init__(verbose)
         if isinstance(eval_freq, bool) or not isinstance(eval_freq, (int, np.integer)) or eval_freq < 1:
             raise ValueError(f"eval_freq must be an int >= 1 (agent-steps), got {eval_freq!r}")
-        if condition not in CONDITIONS:
-            raise ValueError(f"Unknown condition {condition!r}; allowed conditions: {list(CONDITIONS)}")
+        check_condition(condition)
         self.eval_freq = int(eval_freq)
         self.n_eval_episodes = n_eval_episodes
         self.config = config

@@ -87,7 +87,7 @@ def conditions_for(variant: str, conditions: Sequence[str]) -> list[str]:
     off, so it runs only the conditions that change the links alone."""
     if variant != "independent":
         return list(conditions)
-    return [c for c in conditions if not any(evaluation._SWITCHES[c])]
+    return [c for c in conditions if not evaluation.CONDITION_TABLE[c].switches_policy]
 
 
 class TuneProgress(BaseCallback):

@@ -51,6 +51,9 @@ class StepOutput(NamedTuple):
     """mhat_t = P(rho_t, o_t, e_t), evaluated at every step, (B, d_mu + d_tau)."""
     has_message: th.Tensor
     """Whether N_t^i is not empty, (B,) bool."""
+    sent_message: th.Tensor
+    """z_{t-1}^i = [mu_{t-1}^i; tau_{t-1}^i], the message agent i broadcast for step t (zero at an episode start),
+    (B, d_mu + d_tau)."""
 
 
 class SequenceEvaluation(NamedTuple):
@@ -321,7 +324,7 @@ class LatentSwarmPolicy(BasePolicy):
         task_state = self.task_encoder(th.cat([local_obs, proprio, map_prev, best_message], dim=-1), task_prev)
 
         new_state = LatentState(map_state, task_state, memory_state, local_obs, best_message)
-        return StepOutput(new_state, received_message, predicted_message, has_message)
+        return StepOutput(new_state, received_message, predicted_message, has_message, messages.view(batch, self.message_dim))
 
     # ------------------------------------------------------------------ heads
     def action_distribution(self, task_state: th.Tensor) -> DiagGaussianDistribution:

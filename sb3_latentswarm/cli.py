@@ -414,8 +414,10 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument(
         "--variant",
         nargs="+",
-        choices=("proposed", "no_comm", "independent"),
-        help="learners to train (default: all three); no_comm is LatentSwarmPPO trained with every link down",
+        choices=("proposed", "no_comm", "zero_substitute", "hold_last", "independent"),
+        help="learners to train (default: proposed no_comm independent); no_comm is LatentSwarmPPO trained with every "
+        "link down, zero_substitute / hold_last are LatentSwarmPPO trained with zeros / the last received message in "
+        "place of the predicted message during dropout",
     )
     sweep.add_argument(
         "--grid", action="append", metavar="NAME=V1,V2", help="settings to cross, any name --set takes (repeatable)"

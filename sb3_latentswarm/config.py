@@ -17,7 +17,7 @@ from typing import Any
 
 LINK_MODES = ("channel", "full", "full_in_range", "none")
 ACTION_FRAMES = ("world", "body")
-START_REGIONS = ("uniform", "corner")
+START_REGIONS = ("uniform", "corner", "random_corner")
 OUTAGE_MODELS = ("bernoulli", "gilbert_elliott")
 
 
@@ -58,7 +58,8 @@ class SwarmConfig:
     """*Extension, opt-in.* Where the UAVs start (see :func:`~sb3_latentswarm.envs.start_positions.sample_start_positions`).
     ``"uniform"`` (default, as the paper's random placement): independently and uniformly over the arena.
     ``"corner"``: uniformly in the ``start_region_size x start_region_size`` square at the arena's corner (0, 0), a
-    common launch area, so start positions cannot act as implicit agent ids or split the map."""
+    common launch area, so start positions cannot act as implicit agent ids or split the map. ``"random_corner"``:
+    the same square at one of the four corners, drawn per episode (no convention learnt from one corner applies)."""
     start_region_size: float = 5.0
     """*Extension.* Side in metres of the launch square of ``start_region="corner"`` (at most the arena's shorter side);
     unused by ``"uniform"``."""
@@ -259,10 +260,10 @@ class SwarmConfig:
             raise ValueError(f"SwarmConfig.start_region must be one of {START_REGIONS}, got {self.start_region!r}")
         check_float("start_region_size", 0.0, low_open=True)
         shorter_side = min(self.grid_width, self.grid_height) * self.cell_size
-        if self.start_region == "corner" and self.start_region_size > shorter_side:
+        if self.start_region in ("corner", "random_corner") and self.start_region_size > shorter_side:
             raise ValueError(
                 f"SwarmConfig.start_region_size must be in (0, {shorter_side}] (the arena's shorter side in metres) for "
-                f"start_region='corner', got {self.start_region_size}"
+                f"start_region={self.start_region!r}, got {self.start_region_size}"
             )
         if self.outage_model not in OUTAGE_MODELS:
             raise ValueError(f"SwarmConfig.outage_model must be one of {OUTAGE_MODELS}, got {self.outage_model!r}")

@@ -177,7 +177,7 @@ def test_sweep_smoke_end_to_end_and_resume(tmp_path):
     assert set(cell.query("variant == 'independent'")["condition"]) == {"proposed"}
     assert (cell["p_fail"] == 0.5).all()
     assert set(scores.query("eval_set == 'table1'")["condition"]) == {
-        "proposed", "full_comm", "full_comm_in_range", "no_comm", "no_predictor", "no_memory"
+        "proposed", "full_comm", "full_comm_in_range", "no_comm", "no_predictor", "no_memory", "hold_last", "own_message"
     }
 
     episodes = pd.read_csv(output / "episodes.csv")

@@ -227,11 +227,27 @@ def test_start_positions_batch_shape_and_region() -> None:
     np.testing.assert_array_equal(positions, again)
 
 
+def test_random_corner_launches_each_swarm_from_one_drawn_corner() -> None:
+    config = SwarmConfig(n_agents=5, start_region="random_corner", start_region_size=7.5)
+    positions = sample_start_positions(config, np.random.default_rng(3), n_swarms=400)
+    corner_config = config.replace(start_region="corner")
+    base = sample_start_positions(corner_config, np.random.default_rng(3), n_swarms=400)  # the same jitter draw
+    arena_x, arena_y = config.arena_size
+    far_x = positions[..., 0] > arena_x / 2
+    far_y = positions[..., 1] > arena_y / 2
+    # all UAVs of a swarm share its corner, and the jitter is the corner square's, mirrored
+    assert np.all(far_x == far_x[:, :1]) and np.all(far_y == far_y[:, :1])
+    np.testing.assert_allclose(np.where(far_x, arena_x - positions[..., 0], positions[..., 0]), base[..., 0])
+    np.testing.assert_allclose(np.where(far_y, arena_y - positions[..., 1], positions[..., 1]), base[..., 1])
+    counts = np.bincount(far_x[:, 0] + 2 * far_y[:, 0], minlength=4)
+    assert np.all(np.abs(counts - 100) < 4 * np.sqrt(400 * 0.25 * 0.75))  # the four corners equally likely
+
+
 # ---------------------------------------------------------------------------------------------- validation
 @pytest.mark.parametrize(
     "changes, match",
     [
-        ({"start_region": "center"}, r"start_region must be one of \('uniform', 'corner'\), got 'center'"),
+        ({"start_region": "center"}, r"start_region must be one of \('uniform', 'corner', 'random_corner'\), got 'center'"),
         ({"start_region_size": 0.0}, r"start_region_size must be in \(0.0, inf\], got 0.0"),
         ({"start_region": "corner", "start_region_size": 60.0}, r"start_region_size must be in \(0, 50.0\].*got 60.0"),
         ({"outage_model": "markov"}, r"outage_model must be one of \('bernoulli', 'gilbert_elliott'\), got 'markov'"),

@@ -10,8 +10,9 @@ import torch as th
 class LatentState(NamedTuple):
     """Recurrent state each UAV carries from step t-1 into step t (Sec. III-A).
 
-    Every field has a leading dimension of vec-env slots (env-major, agent-minor). The last two fields are what the
-    memory update G needs from the previous step; they are part of the state, not of the observation.
+    Every field has a leading dimension of vec-env slots (env-major, agent-minor). ``prev_local_obs`` and
+    ``prev_message`` are what the memory update G needs from the previous step; they are part of the state, not of the
+    observation.
     """
 
     map_state: th.Tensor
@@ -24,6 +25,11 @@ class LatentState(NamedTuple):
     """o_{t-1}, (n_slots, local_obs_dim)."""
     prev_message: th.Tensor
     """mbar_{t-1}, the best available aggregated message of the previous step, (n_slots, d_mu + d_tau)."""
+    held_message: th.Tensor
+    """The last message m actually received in this episode (zero before the first), (n_slots, d_mu + d_tau).
+
+    Only read when ``message_substitute="hold_last"`` (an extension beyond the paper); always carried, so a condition
+    can switch to it at test time."""
 
 
 class SwarmRolloutBufferSamples(NamedTuple):

@@ -19,7 +19,15 @@ Extensions (:data:`EXTRA_CONDITIONS`, not in Table I and not in the default set 
                         set by ``SwarmConfig.link_range_probability``): Full comm without delivering messages from
                         peers so far away that the trained policy never received one (with distance-limited links
                         "a message arrived" is also a proximity cue)
+``hold_last``           channel links; during dropout the last message actually received in the episode (zero
+                        before the first) replaces mhat_t: the baseline a predictor must beat
+``own_message``         channel links; during dropout the agent's own message z_{t-1}^i replaces mhat_t
 ======================  ===================================================================================
+
+Each condition sets the policy's ``message_substitute``
+(:data:`~sb3_latentswarm.latent_ppo.policies.MESSAGE_SUBSTITUTES`) only if it names one (``no_predictor``: ``"zero"``,
+``hold_last``, ``own_message``); the others keep the policy's own (the predictor for a model trained as the paper
+does; zeros for a ``zero_substitute`` learner, the held message for a ``hold_last`` one).
 """
 
 from __future__ import annotations
@@ -57,8 +65,9 @@ class Condition:
     link_mode: str
     """``SwarmConfig.link_mode`` of the evaluation env: ``"channel"`` (Eq. (1) with p_f), ``"full"``, ``"none"`` or
     ``"full_in_range"``."""
-    no_predictor: bool = False
-    """``LatentSwarmPolicy.no_predictor``: a zero vector replaces mhat_t during dropout."""
+    message_substitute: str | None = None
+    """``LatentSwarmPolicy.message_substitute`` under the condition (what replaces m_t during dropout), or ``None``:
+    the policy's own."""
     no_memory: bool = False
     """``LatentSwarmPolicy.no_memory``: rho_t is zeroed before use."""
     in_paper: bool = True
@@ -68,16 +77,18 @@ class Condition:
     def switches_policy(self) -> bool:
         """Whether the condition switches off a component of the latent-swarm policy (so a model without one, a
         planner or the independent learner, cannot be evaluated under it)."""
-        return self.no_predictor or self.no_memory
+        return self.message_substitute is not None or self.no_memory
 
 
 _TABLE = (
     Condition("proposed", "Proposed (full)", "channel"),
     Condition("full_comm", "Full comm (UB)", "full"),
     Condition("no_comm", "No comm (LB)", "none"),
-    Condition("no_predictor", "No predictor", "channel", no_predictor=True),
+    Condition("no_predictor", "No predictor", "channel", message_substitute="zero"),
     Condition("no_memory", "No memory", "channel", no_memory=True),
     Condition("full_comm_in_range", "Full comm in range", "full_in_range", in_paper=False),
+    Condition("hold_last", "Hold last message", "channel", message_substitute="hold_last", in_paper=False),
+    Condition("own_message", "Own message", "channel", message_substitute="own_message", in_paper=False),
 )
 CONDITION_TABLE: Mapping[str, Condition] = MappingProxyType({c.name: c for c in _TABLE})
 """Every test-time condition by name (read-only): the paper's five, then the extensions."""
@@ -110,14 +121,17 @@ def condition_config(config: SwarmConfig, condition: str, p_fail: float) -> Swar
 def policy_switches(policy: LatentSwarmPolicy, condition: str) -> Iterator[LatentSwarmPolicy]:
     """Set the ablation switches of ``condition`` on ``policy`` (and eval mode); restore them on exit.
 
-    Every condition defines every switch, so ``proposed`` also turns off a switch left on by the caller.
+    Every condition sets ``no_memory``, so ``proposed`` also turns off a memory ablation left on by the caller; the
+    substitute is set only by the conditions that name one (``no_predictor``, ``hold_last``, ``own_message``).
     """
     spec = check_condition(condition)
-    saved = (policy.no_predictor, policy.no_memory, policy.training)
-    policy.no_predictor, policy.no_memory = spec.no_predictor, spec.no_memory
+    saved = (policy.message_substitute, policy.no_memory, policy.training)
+    if spec.message_substitute is not None:
+        policy.message_substitute = spec.message_substitute
+    policy.no_memory = spec.no_memory
     policy.set_training_mode(False)
     try:
         yield policy
     finally:
-        policy.no_predictor, policy.no_memory = saved[0], saved[1]
+        policy.message_substitute, policy.no_memory = saved[0], saved[1]
         policy.set_training_mode(saved[2])

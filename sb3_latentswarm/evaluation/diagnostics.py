@@ -5,8 +5,9 @@ Sec. III-C) and, for a latent-swarm policy, two errors:
 
 * ``map_error``: the per-cell squared error of D(mu_t^i) against M_hat_t (the target of Eq. (3));
 * the substitute error: at a dropout step, the per-element squared error between the message the policy used in
-  place of the received one (mbar_t^i: mhat_t^i under ``proposed``, 0 under ``no_predictor``) and the message full
-  connectivity would have delivered, the mean of z_{t-1}^j over all peers j != i.
+  place of the received one (mbar_t^i: mhat_t^i under ``proposed``, 0 under ``no_predictor``, the held or the own
+  message under ``hold_last`` / ``own_message``) and the message full connectivity would have delivered, the mean
+  of z_{t-1}^j over all peers j != i.
 
 The *dropout depth* of a dropout step is its position in the agent's current run of consecutive dropout steps (1 at
 the first step without a message, 2 at the next, ...; a step with a message ends the run, an episode start resets

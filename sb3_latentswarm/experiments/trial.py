@@ -28,8 +28,13 @@ from sb3_latentswarm import evaluation
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.presets import Preset, get_preset
 
-VARIANTS = ("proposed", "no_comm", "independent")
-"""The learners a sweep trains: LatentSwarmPPO, the same trained without links, independent RecurrentPPO."""
+VARIANTS = ("proposed", "no_comm", "zero_substitute", "hold_last", "independent")
+"""The learners a sweep trains: LatentSwarmPPO (``proposed``), the same trained without links (``no_comm``), the same
+trained with zeros (``zero_substitute``) or the last received message (``hold_last``) in place of the predicted message
+during dropout (so that its policy learns to read that substitute: the fair "no predictor" learners), and independent
+RecurrentPPO."""
+TRAINING_SUBSTITUTES = {"zero_substitute": "zero", "hold_last": "hold_last"}
+"""``LatentSwarmPolicy.message_substitute`` of the variants trained with another substitute than the predictor."""
 EVAL_SEED_BASE = 1_000_000
 """First env seed of the evaluation episodes (training env seeds stay below it)."""
 SCORE_METRICS = ("coverage", "collisions", "steps_to_90", "reached_90")
@@ -88,6 +93,14 @@ def conditions_for(variant: str, conditions: Sequence[str]) -> list[str]:
     if variant != "independent":
         return list(conditions)
     return [c for c in conditions if not evaluation.CONDITION_TABLE[c].switches_policy]
+
+
+def variant_algo_kwargs(variant: str, algo_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """``LatentSwarmPPO`` keyword arguments of ``variant``: the preset's, with the variant's training substitute."""
+    if variant not in TRAINING_SUBSTITUTES:
+        return dict(algo_kwargs)
+    policy_kwargs = {**algo_kwargs.get("policy_kwargs", {}), "message_substitute": TRAINING_SUBSTITUTES[variant]}
+    return {**algo_kwargs, "policy_kwargs": policy_kwargs}
 
 
 class TuneProgress(BaseCallback):
@@ -204,7 +217,8 @@ def train_and_evaluate(
         model = train_independent_ppo(env, preset.total_timesteps, seed=train_seed, device=device, callback=progress)
         trained_steps = model.model.num_timesteps
     else:
-        model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=train_seed, device=device, **preset.algo_kwargs)
+        algo_kwargs = variant_algo_kwargs(variant, preset.algo_kwargs)
+        model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=train_seed, device=device, **algo_kwargs)
         model.learn(total_timesteps=preset.total_timesteps, callback=progress)
         trained_steps = model.num_timesteps
     train_seconds = time.perf_counter() - start
@@ -231,7 +245,9 @@ def train_and_evaluate(
         "node": platform.node(),
         "train_config": train_config.to_dict(),
         "eval_config": preset.config.to_dict(),
-        "algo_kwargs": preset.algo_kwargs if variant != "independent" else "train_independent_ppo defaults",
+        "algo_kwargs": variant_algo_kwargs(variant, preset.algo_kwargs)
+        if variant != "independent"
+        else "train_independent_ppo defaults",
         "n_envs": preset.n_envs,
         "training_env_seeds": [env_seed, env_seed + preset.n_envs - 1],
         "eval_env_seeds": [spec["eval_seed"], spec["eval_seed"] + spec["eval_episodes"] - 1],
@@ -254,6 +270,7 @@ __all__ = [
     "SCORE_METRICS",
     "VARIANTS",
     "EvalSet",
+    "TRAINING_SUBSTITUTES",
     "TuneProgress",
     "conditions_for",
     "default_eval_sets",
@@ -263,4 +280,5 @@ __all__ = [
     "train_and_evaluate",
     "trial_preset",
     "training_env_seed",
+    "variant_algo_kwargs",
 ]

@@ -30,6 +30,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 
+from sb3_latentswarm.common.checks import check_choice
 from sb3_latentswarm.common.observations import ACTOR_KEYS, as_vec_observation
 from sb3_latentswarm.common.type_aliases import LatentState
 from sb3_latentswarm.common.value_norm import ValueNorm
@@ -52,8 +53,21 @@ class StepOutput(NamedTuple):
     has_message: th.Tensor
     """Whether N_t^i is not empty, (B,) bool."""
     sent_message: th.Tensor
-    """z_{t-1}^i = [mu_{t-1}^i; tau_{t-1}^i], the message agent i broadcast for step t (zero at an episode start),
+    """z_{t-1}^i = [mu_{t-1}^i; tau_{t-1}^i], the message this agent broadcast for step t (zero at an episode start),
     (B, d_mu + d_tau)."""
+
+
+MESSAGE_SUBSTITUTES = ("predicted", "zero", "hold_last", "own_message")
+"""What replaces the aggregated message m_t at a step with no live in-link (dropout), ``mbar_t = m_t if N_t^i != {}``
+else the substitute:
+
+===============  ===========================================================================================
+``predicted``    mhat_t = P_zeta(rho_t, o_t, e_t), the memory-conditioned predictor (Sec. III-C; the paper)
+``zero``         a zero vector (the paper's "No predictor" ablation)
+``hold_last``    the last message actually received in the episode, zero before the first (extension)
+``own_message``  the agent's own message z_{t-1}^i (extension)
+===============  ===========================================================================================
+"""
 
 
 class SequenceEvaluation(NamedTuple):
@@ -105,7 +119,12 @@ class LatentSwarmPolicy(BasePolicy):
     :param ortho_init: orthogonal initialization of the linear layers (as SB3's ActorCriticPolicy)
     :param optimizer_class: optimizer (default Adam)
     :param optimizer_kwargs: optimizer keyword arguments (default ``eps=1e-5`` as SB3's PPO)
-    :param no_predictor: ablation: a zero vector replaces mhat_t during dropout
+    :param message_substitute: what replaces m_t during dropout, one of :data:`MESSAGE_SUBSTITUTES` (default
+        ``"predicted"``, the paper's predictor); training with ``"zero"`` or ``"hold_last"`` gives the fair
+        "no predictor" learners of the sweep's ``zero_substitute`` / ``hold_last`` variants
+    :param no_predictor: the paper's ablation, the same as ``message_substitute="zero"`` (kept for old files and
+        callers: reading it says whether the substitute is ``"zero"``, setting it switches between ``"zero"`` and
+        ``"predicted"``)
     :param no_memory: ablation: rho is zeroed before every use
     """
 
@@ -132,6 +151,7 @@ class LatentSwarmPolicy(BasePolicy):
         optimizer_kwargs: dict[str, Any] | None = None,
         no_predictor: bool = False,
         no_memory: bool = False,
+        message_substitute: str = "predicted",
         **unused_kwargs: Any,
     ):
         if unused_kwargs:
@@ -173,7 +193,11 @@ class LatentSwarmPolicy(BasePolicy):
         self.normalize_value = bool(normalize_value)
         self.value_norm_beta = value_norm_beta
         self.ortho_init = ortho_init
-        self.no_predictor = no_predictor
+        self.message_substitute = check_choice("message_substitute", message_substitute, MESSAGE_SUBSTITUTES)
+        if no_predictor:
+            if message_substitute not in ("predicted", "zero"):
+                raise ValueError(f"no_predictor=True contradicts message_substitute={message_substitute!r}")
+            self.message_substitute = "zero"
         self.no_memory = no_memory
 
         self.local_obs_dim = int(np.prod(observation_space["local_obs"].shape))
@@ -249,15 +273,24 @@ class LatentSwarmPolicy(BasePolicy):
             value_norm_beta=self.value_norm_beta,
             ortho_init=self.ortho_init,
             lr_schedule=self._dummy_schedule,
-            no_predictor=self.no_predictor,
             no_memory=self.no_memory,
+            message_substitute=self.message_substitute,
         )
         return data
 
     @property
+    def no_predictor(self) -> bool:
+        """The paper's "No predictor" ablation: ``message_substitute == "zero"``."""
+        return self.message_substitute == "zero"
+
+    @no_predictor.setter
+    def no_predictor(self, value: bool) -> None:
+        self.message_substitute = "zero" if value else "predicted"
+
+    @property
     def latent_dims(self) -> tuple[int, ...]:
         """Sizes of the :class:`LatentState` fields, in field order."""
-        return (self.map_dim, self.task_dim, self.memory_dim, self.local_obs_dim, self.message_dim)
+        return (self.map_dim, self.task_dim, self.memory_dim, self.local_obs_dim, self.message_dim, self.message_dim)
 
     def initial_state(self, n_slots: int) -> LatentState:
         """All-zero latent state for ``n_slots`` agents (the state at an episode start)."""
@@ -286,7 +319,7 @@ class LatentSwarmPolicy(BasePolicy):
 
     def _eager_latent_step(self, obs: dict[str, th.Tensor], state: LatentState, episode_starts: th.Tensor) -> StepOutput:
         keep = (1.0 - episode_starts.float()).unsqueeze(-1)
-        map_prev, task_prev, memory_prev, local_prev, message_prev = (field * keep for field in state)
+        map_prev, task_prev, memory_prev, local_prev, message_prev, held_prev = (field * keep for field in state)
         local_obs = obs["local_obs"].float().flatten(1)  # (B, o_dim)
         proprio = obs["proprio"].float()  # (B, e_dim)
         link_row = obs["link_row"].float()  # (B, N)
@@ -298,7 +331,8 @@ class LatentSwarmPolicy(BasePolicy):
 
         # Sec. III-B: z_{t-1}^j = [mu_{t-1}^j; tau_{t-1}^j],  m_t^i = mean_{j in N_t^i} z_{t-1}^j
         link_mask = link_row.view(n_swarms, n_agents, n_agents)  # [i, j] = 1 iff j -> i delivered at t
-        messages = th.cat([map_prev, task_prev], dim=-1).view(n_swarms, n_agents, self.message_dim)
+        sent_message = th.cat([map_prev, task_prev], dim=-1)  # z_{t-1}^i, (B, d_msg)
+        messages = sent_message.view(n_swarms, n_agents, self.message_dim)
         in_degree = link_mask.sum(-1, keepdim=True)  # |N_t^i|, (n_swarms, N, 1)
         received_message = (th.bmm(link_mask, messages) / in_degree.clamp(min=1.0)).view(batch, self.message_dim)
         has_message = (in_degree > 0).view(batch)
@@ -311,8 +345,18 @@ class LatentSwarmPolicy(BasePolicy):
 
         # Sec. III-C: mhat_t = P_zeta(rho_t, o_t, e_t);  mbar_t = m_t if N_t^i != {} else mhat_t
         predicted_message = self.message_predictor(th.cat([memory_used, local_obs, proprio], dim=-1))
-        substitute = th.zeros_like(predicted_message) if self.no_predictor else predicted_message
-        best_message = th.where(has_message.unsqueeze(-1), received_message, substitute)
+        # (extensions: hold_last / own_message / zero replace mhat_t; see MESSAGE_SUBSTITUTES)
+        received_now = has_message.unsqueeze(-1)
+        held_message = th.where(received_now, received_message, held_prev)
+        if self.message_substitute == "predicted":
+            substitute = predicted_message
+        elif self.message_substitute == "zero":
+            substitute = th.zeros_like(predicted_message)
+        elif self.message_substitute == "hold_last":
+            substitute = held_prev
+        else:  # own_message
+            substitute = sent_message
+        best_message = th.where(received_now, received_message, substitute)
 
         # Sec. III-A, asymmetric update: mu_t = E_phi(mu_{t-1}, o_t, p_t, m^mu_t), m^mu_t = 0 when nothing arrived
         # (received_message is already zero there, so the predictor never reaches the map state)
@@ -323,8 +367,8 @@ class LatentSwarmPolicy(BasePolicy):
         # Sec. III-A: tau_t = F_theta(tau_{t-1}, o_t, e_t, mu_{t-1}, mbar_t)
         task_state = self.task_encoder(th.cat([local_obs, proprio, map_prev, best_message], dim=-1), task_prev)
 
-        new_state = LatentState(map_state, task_state, memory_state, local_obs, best_message)
-        return StepOutput(new_state, received_message, predicted_message, has_message, messages.view(batch, self.message_dim))
+        new_state = LatentState(map_state, task_state, memory_state, local_obs, best_message, held_message)
+        return StepOutput(new_state, received_message, predicted_message, has_message, sent_message)
 
     # ------------------------------------------------------------------ heads
     def action_distribution(self, task_state: th.Tensor) -> DiagGaussianDistribution:

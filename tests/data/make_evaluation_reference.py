@@ -11,10 +11,9 @@ Command (from the repository root)::
 
 from __future__ import annotations
 
+import hashlib
 import sys
 from pathlib import Path
-
-import hashlib
 
 import numpy as np
 import pandas as pd

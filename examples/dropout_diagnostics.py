@@ -52,6 +52,7 @@ def summarize_diagnostics(episodes: pd.DataFrame) -> pd.DataFrame:
     grouped = episodes.groupby("condition", sort=False)
     table = grouped[list(TABLE_COLUMNS)].mean()
     table.insert(0, "episodes", grouped.size())
+    table["episodes_deepest"] = grouped[DEPTH_COLUMNS[-1]].count()  # episodes with a dropout run past the last bin start
     table.insert(0, "label", [CONDITION_LABELS[c] for c in table.index])
     return table.reset_index()
 
@@ -66,7 +67,7 @@ def plot_error_by_depth(table: pd.DataFrame, path: Path, title: str) -> None:
     positions = np.arange(len(DEPTH_COLUMNS))
     for _, row in table.iterrows():
         ax.plot(positions, row[list(DEPTH_COLUMNS)].to_numpy(float), marker="o", label=row["label"])
-    ax.set_xticks(positions, [f"{label} steps" for label in DEPTH_LABELS])
+    ax.set_xticks(positions, [f"{label} step{'' if label == '1' else 's'}" for label in DEPTH_LABELS])
     ax.set_yscale("log")
     ax.set_xlabel("dropout depth (steps since the last received message)")
     ax.set_ylabel("squared error per element\nvs the full-connectivity message")
@@ -141,7 +142,8 @@ def main() -> None:
         "Means over episodes. `dropout_share`: share of agent-steps without a live in-link; `dropout_run_mean`: mean "
         "length of a dropout run (steps); `pred_error_dropout` and `error, depth d`: per-element squared error of the "
         "substitute message against the mean of the peers' messages z_{t-1}^j (what full connectivity would have "
-        "delivered), over the dropout steps (at depth d: d steps into the outage).\n",
+        "delivered), over the dropout steps (at depth d: d steps into the outage); `episodes_deepest`: episodes with "
+        f"a dropout run longer than {DEPTH_BINS[-1][0] - 1} steps (the last column's sample).\n",
         markdown,
         "",
         "![Substitute error by dropout depth](error_by_depth.png)",

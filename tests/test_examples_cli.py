@@ -288,3 +288,16 @@ def test_importing_the_package_applies_the_thread_default_unless_the_environment
     )
     assert result.returncode == 0, result.stderr
     assert int(result.stdout) == expected
+
+
+def test_dropout_diagnostics_smoke(tmp_path):
+    model = ROOT / "docs/results/coordination/trials/proposed-seed0/model.zip"
+    result = run_script(
+        "examples/dropout_diagnostics.py",
+        *("--model", str(model), "--episodes", "2", "--conditions", "proposed", "hold_last", "--output", str(tmp_path)),
+    )
+    assert result.returncode == 0, result.stderr
+    table = pd.read_csv(tmp_path / "dropout_diagnostics.csv")
+    assert table["condition"].tolist() == ["proposed", "hold_last"] and (table["episodes"] == 2).all()
+    assert (tmp_path / "error_by_depth.png").stat().st_size > 0
+    assert "episode seeds 1000000-1000001, sampled actions" in (tmp_path / "dropout_diagnostics.md").read_text()

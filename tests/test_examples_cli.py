@@ -300,4 +300,4 @@ def test_dropout_diagnostics_smoke(tmp_path):
     table = pd.read_csv(tmp_path / "dropout_diagnostics.csv")
     assert table["condition"].tolist() == ["proposed", "hold_last"] and (table["episodes"] == 2).all()
     assert (tmp_path / "error_by_depth.png").stat().st_size > 0
-    assert "episode seeds 1000000-1000001, sampled actions" in (tmp_path / "dropout_diagnostics.md").read_text()
+    assert "Episode seeds 1000000-1000001, sampled actions" in (tmp_path / "dropout_diagnostics.md").read_text()

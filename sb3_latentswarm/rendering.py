@@ -44,8 +44,7 @@ def run_episode(model, config: SwarmConfig, seed: int = 0, condition: str = "pro
     agents = [f"uav_{i}" for i in range(core.n_agents)]
     rng = np.random.default_rng(seed)
     policy = getattr(model, "policy", None)
-    use_switches = isinstance(policy, LatentSwarmPolicy)
-    switches = policy_switches(policy, condition) if use_switches else contextlib.nullcontext()
+    switches = policy_switches(policy, condition) if isinstance(policy, LatentSwarmPolicy) else contextlib.nullcontext()
     frames, positions, dropouts, state, infos = [], [], [], None, {}
     done = False
     with switches, th.random.fork_rng():

@@ -198,12 +198,14 @@ def _run_episodes(
     start(np.arange(n_envs))
     while (episode_of >= 0).any():
         live = np.flatnonzero(episode_of >= 0)
-        noise = None
+        noise: np.ndarray | None = None
         if stochastic_noise:
-            noise = np.zeros((n_envs, n, action_dim), dtype=np.float32)
+            swarm_noise = np.zeros((n_envs, n, action_dim), dtype=np.float32)
             for swarm in live.tolist():
-                noise[swarm] = noise_rngs[swarm].standard_normal((n, action_dim))
-            noise = noise.reshape(n_slots, action_dim)
+                rng = noise_rngs[swarm]
+                assert rng is not None  # created when the swarm's episode started
+                swarm_noise[swarm] = rng.standard_normal((n, action_dim))
+            noise = swarm_noise.reshape(n_slots, action_dim)
         # idle swarms stay in the batch (their actions move nothing that is recorded), so the actor's state keeps
         # one row per slot
         link_rows = core.link_rows.reshape(n_slots, n)
@@ -327,7 +329,7 @@ def evaluate(
     else:
         with policy_switches(policy, condition):
             actor = LatentActor(policy, n_envs * config.n_agents, config.n_agents)
-            action_dim = int(np.prod(policy.action_space.shape))
+            action_dim = int(policy.action_dim)
             rows, curves = _run_episodes(actor, config, n_episodes, seed, n_envs, not deterministic, action_dim, progress)
     if progress is not None:
         progress.close()

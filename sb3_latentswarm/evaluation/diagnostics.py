@@ -32,7 +32,7 @@ import math
 
 import numpy as np
 
-__all__ = ["DEPTH_BINS", "DEPTH_COLUMNS", "DIAGNOSTIC_COLUMNS", "EpisodeDiagnostics"]
+__all__ = ["DEPTH_BINS", "DEPTH_COLUMNS", "DIAGNOSTIC_COLUMNS", "EPISODE_COLUMNS", "EpisodeDiagnostics"]
 
 DEPTH_BINS = ((1, 1), (2, 5), (6, 15), (16, math.inf))
 """Dropout depths (first, last step, inclusive) of the ``pred_error_depth_*`` columns."""
@@ -40,6 +40,24 @@ DEPTH_COLUMNS = ("pred_error_depth_1", "pred_error_depth_2_5", "pred_error_depth
 """Per-episode columns of the substitute error by dropout depth, one per :data:`DEPTH_BINS` entry."""
 DIAGNOSTIC_COLUMNS = ("dropout_share", "dropout_run_mean", *DEPTH_COLUMNS)
 """The dropout diagnostics added to every per-episode row (after ``pred_error_dropout``)."""
+EPISODE_COLUMNS = (
+    "episode",
+    "seed",
+    "condition",
+    "p_fail",
+    "coverage",
+    "collisions",
+    "steps_to_90",
+    "episode_return",
+    "episode_length",
+    "link_up_rate",
+    "dropout_rate",
+    "map_error",
+    "pred_error_dropout",
+    *DIAGNOSTIC_COLUMNS,
+)
+"""Columns of the per-episode DataFrame of :func:`~sb3_latentswarm.evaluation.evaluate`, in order: the episode, its
+seed and cell, Table I's three metrics, the episode statistics of the env, then the diagnostics of this module."""
 # bin of depth d (d >= 1): the number of bin starts <= d, minus one
 _BIN_STARTS = np.array([low for low, _ in DEPTH_BINS])
 

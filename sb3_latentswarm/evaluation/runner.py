@@ -37,7 +37,7 @@ from sb3_latentswarm.evaluation.conditions import (
     condition_config,
     policy_switches,
 )
-from sb3_latentswarm.evaluation.diagnostics import DIAGNOSTIC_COLUMNS, EpisodeDiagnostics
+from sb3_latentswarm.evaluation.diagnostics import EPISODE_COLUMNS, EpisodeDiagnostics
 from sb3_latentswarm.evaluation.paper import PAPER_P_FAILS
 from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
 
@@ -53,26 +53,6 @@ __all__ = [
 
 HELD_OUT_SEED = 1_000_000
 """Default first episode seed of every evaluation: held out from the env seeds of training (see the module docstring)."""
-
-EPISODE_COLUMNS = (
-    "episode",
-    "seed",
-    "condition",
-    "p_fail",
-    "coverage",
-    "collisions",
-    "steps_to_90",
-    "episode_return",
-    "episode_length",
-    "link_up_rate",
-    "dropout_rate",
-    "map_error",
-    "pred_error_dropout",
-    *DIAGNOSTIC_COLUMNS,
-)
-"""Columns of the per-episode DataFrame of :func:`evaluate`, in order (the diagnostics:
-:mod:`sb3_latentswarm.evaluation.diagnostics`)."""
-
 
 def seed_range(seed: int, n_episodes: int) -> str:
     """The episode seeds ``seed .. seed + n_episodes - 1`` as printed beside every table (``"seeds 1000000-1000009"``)."""
@@ -358,13 +338,8 @@ def evaluate_conditions(
     """
     for condition in conditions:
         check_condition(condition)
-    model = _resolve_model(model)
-    frames, curves = [], {}
-    for condition in conditions:
-        df, curves[condition] = evaluate(model, condition, p_fail, n_episodes, seed, config, return_curves=True, **kwargs)
-        frames.append(df)
-    df = pd.concat(frames, ignore_index=True)
-    return (df, curves) if return_curves else df
+    cells = [(condition, condition, p_fail) for condition in conditions]
+    return _evaluate_cells(model, cells, n_episodes, seed, config, return_curves, kwargs)
 
 
 def evaluate_p_fail_sweep(
@@ -382,11 +357,25 @@ def evaluate_p_fail_sweep(
     :param kwargs: further :func:`evaluate` arguments (``deterministic``, ``n_envs``, ``progress_bar``)
     :return: the concatenated per-episode DataFrame; with ``return_curves`` also ``{p_fail: curves}``
     """
-    p_fails = [check_p_fail(p) for p in p_fails]
+    cells = [(p, condition, p) for p in (check_p_fail(p) for p in p_fails)]
+    return _evaluate_cells(model, cells, n_episodes, seed, config, return_curves, kwargs)
+
+
+def _evaluate_cells(
+    model: Any,
+    cells: Sequence[tuple[Any, str, float | None]],
+    n_episodes: int,
+    seed: int,
+    config: SwarmConfig | None,
+    return_curves: bool,
+    kwargs: dict[str, Any],
+) -> pd.DataFrame | tuple[pd.DataFrame, dict[Any, np.ndarray]]:
+    """:func:`evaluate` in each ``(key, condition, p_fail)`` cell on the same seeds: the rows concatenated, and with
+    ``return_curves`` also ``{key: curves}``."""
     model = _resolve_model(model)
     frames, curves = [], {}
-    for p in p_fails:
-        df, curves[p] = evaluate(model, condition, p, n_episodes, seed, config, return_curves=True, **kwargs)
+    for key, condition, p_fail in cells:
+        df, curves[key] = evaluate(model, condition, p_fail, n_episodes, seed, config, return_curves=True, **kwargs)
         frames.append(df)
     df = pd.concat(frames, ignore_index=True)
     return (df, curves) if return_curves else df

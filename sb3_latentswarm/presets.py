@@ -43,6 +43,29 @@ class Preset:
         per_update = self.algo_kwargs["n_steps"] * self.n_envs * self.config.n_agents
         return max(1, -(-self.total_timesteps // per_update))
 
+    def independent_ppo_kwargs(self) -> dict[str, Any]:
+        """``RecurrentPPO`` keyword arguments giving the ``independent`` baseline this preset's PPO settings.
+
+        The settings both algorithms share (:data:`SHARED_PPO_SETTINGS`: rollout length, minibatch, epochs, learning
+        rate, discount, GAE, clip range, entropy and value coefficients, gradient clip) take the values
+        ``LatentSwarmPPO`` trains ``proposed`` with (this preset's ``algo_kwargs``, else ``LatentSwarmPPO``'s
+        defaults), and the policy's initial log std is the preset's ``log_std_init``. sb3-contrib's policy has a
+        state-independent, unbounded log std: no bound can be passed (``docs/evaluation.md`` lists what differs).
+
+        :return: keyword arguments of :func:`~sb3_latentswarm.baselines.train_independent_ppo`
+        """
+        import inspect
+
+        from sb3_latentswarm.latent_ppo import LatentSwarmPolicy, LatentSwarmPPO
+
+        defaults = inspect.signature(LatentSwarmPPO.__init__).parameters
+        kwargs = {name: self.algo_kwargs.get(name, defaults[name].default) for name in SHARED_PPO_SETTINGS}
+        log_std_init = self.algo_kwargs.get("policy_kwargs", {}).get(
+            "log_std_init", inspect.signature(LatentSwarmPolicy.__init__).parameters["log_std_init"].default
+        )
+        kwargs["policy_kwargs"] = dict(log_std_init=log_std_init)
+        return kwargs
+
     def with_overrides(self, **overrides: Any) -> Preset:
         """A copy with settings replaced, each routed by its name (see :func:`override_targets`).
 
@@ -64,6 +87,11 @@ class Preset:
             self, config=self.config.replace(**pick["SwarmConfig"]), algo_kwargs=algo_kwargs, **pick["Preset"]
         )
 
+
+SHARED_PPO_SETTINGS = ("learning_rate", "n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "clip_range",
+                       "normalize_advantage", "ent_coef", "vf_coef", "max_grad_norm", "target_kl")
+"""Arguments that ``LatentSwarmPPO`` and sb3-contrib's ``RecurrentPPO`` share, with the same meaning (``n_steps`` per
+vec-env slot, ``batch_size`` in agent-steps)."""
 
 PRESET_SETTINGS = ("n_envs", "eval_episodes")
 """Fields of :class:`Preset` that ``--set`` may replace."""
@@ -99,6 +127,10 @@ MAPPO_TRAINING: dict[str, Any] = dict(normalize_value=True, value_loss="huber", 
 docs/results/training_options_fast/): the critic's gradient no longer scales down the actor's and the latent losses'."""
 BOUNDED_STD: dict[str, Any] = dict(log_std_bounds=(-5.0, 0.0), log_std_init=-0.5)
 """Policy std at most 1 (half the action box), initially 0.61: most sampled actions fall inside the box."""
+ACTOR: dict[str, Any] = dict(action_distribution="gaussian", log_std_mapping="tanh")
+"""The actor of every preset, named so that ``--set action_distribution=squashed_gaussian`` (or
+``log_std_mapping=clamp``, the bound of the models trained before it existed) reads as a change of it: the paper's
+Gaussian, its log std bounded smoothly (``docs/algorithm.md``, "The actor")."""
 
 
 def _algo_kwargs(
@@ -114,6 +146,7 @@ def _algo_kwargs(
             decoder_hidden=hidden,
             critic_hidden=hidden,
             actor_hidden=min(hidden, 64),
+            **ACTOR,
             **(BOUNDED_STD if mappo else {}),
         ),
     )

@@ -97,7 +97,9 @@ def test_per_group_clipping_keeps_the_critic_from_scaling_the_actor():
 
 def test_std_bound_holds_for_any_task_state():
     for dependent in (True, False):
-        model = make_model(policy_kwargs=dict(TINY_POLICY, log_std_bounds=(-5.0, 0.0), state_dependent_std=dependent))
+        model = make_model(
+            policy_kwargs=dict(TINY_POLICY, log_std_bounds=(-5.0, 0.0), log_std_init=-0.5, state_dependent_std=dependent)
+        )
         policy = model.policy
         with th.no_grad():
             if dependent:

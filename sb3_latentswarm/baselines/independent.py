@@ -98,16 +98,14 @@ def train_independent_ppo(
     :param total_timesteps: budget in agent-steps
     :param hidden: LSTM hidden size and MLP width
     :param callback: SB3 callback(s) of ``learn`` (e.g. progress reports)
+    :param kwargs: other ``RecurrentPPO`` arguments; ``policy_kwargs`` are added to the LSTM sizes above
+        (:meth:`Preset.independent_ppo_kwargs <sb3_latentswarm.presets.Preset.independent_ppo_kwargs>` gives a
+        preset's PPO settings)
     """
+    policy_kwargs = dict(lstm_hidden_size=hidden, net_arch=[hidden], **kwargs.pop("policy_kwargs", {}))
+    settings: dict[str, Any] = dict(n_steps=n_steps, batch_size=batch_size, ent_coef=0.01, seed=seed)
     model = RecurrentPPO(
-        "MultiInputLstmPolicy",
-        OwnObservationVecEnv(vec_env),
-        n_steps=n_steps,
-        batch_size=batch_size,
-        ent_coef=0.01,
-        seed=seed,
-        policy_kwargs=dict(lstm_hidden_size=hidden, net_arch=[hidden]),
-        **kwargs,
+        "MultiInputLstmPolicy", OwnObservationVecEnv(vec_env), **{**settings, **kwargs}, policy_kwargs=policy_kwargs
     )
     model.learn(total_timesteps=total_timesteps, callback=callback)
     return IndependentRecurrentPPO(model)

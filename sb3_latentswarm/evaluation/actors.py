@@ -49,10 +49,8 @@ class LatentActor:
             starts = th.as_tensor(episode_starts, dtype=th.float32, device=device)
             step = policy.latent_step(tensors, self.state, starts)
             self.state = step.state
-            distribution = policy.action_distribution(step.state.task_state).distribution
-            actions = distribution.mean
-            if noise is not None:  # a Gaussian sample mean + std * eps with eps from the episode's own generator
-                actions = actions + distribution.stddev * th.as_tensor(noise, device=device)
+            # the mean action, or a sample with eps from the episode's own generator
+            actions = policy.actions_from_noise(step.state.task_state, noise)
 
             # map_error: per-cell squared error of D(mu_t^i) against M_hat_t (the target of Eq. (3))
             decoded = policy.decode_map(step.state.map_state).view(-1, n, policy.n_cells)  # (n_swarms, N, H*W)

@@ -214,7 +214,9 @@ def train_and_evaluate(
     progress = TuneProgress(report)
     start = time.perf_counter()
     if variant == "independent":
-        model = train_independent_ppo(env, preset.total_timesteps, seed=train_seed, device=device, callback=progress)
+        model = train_independent_ppo(
+            env, preset.total_timesteps, seed=train_seed, device=device, callback=progress, **preset.independent_ppo_kwargs()
+        )
         trained_steps = model.model.num_timesteps
     else:
         algo_kwargs = variant_algo_kwargs(variant, preset.algo_kwargs)
@@ -247,7 +249,7 @@ def train_and_evaluate(
         "eval_config": preset.config.to_dict(),
         "algo_kwargs": variant_algo_kwargs(variant, preset.algo_kwargs)
         if variant != "independent"
-        else "train_independent_ppo defaults",
+        else preset.independent_ppo_kwargs(),
         "n_envs": preset.n_envs,
         "training_env_seeds": [env_seed, env_seed + preset.n_envs - 1],
         "eval_env_seeds": [spec["eval_seed"], spec["eval_seed"] + spec["eval_episodes"] - 1],

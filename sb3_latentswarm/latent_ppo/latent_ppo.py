@@ -37,7 +37,14 @@ from sb3_latentswarm.common.schedules import paper_learning_rate
 from sb3_latentswarm.common.serialization import UnsafeModelFileError, load_plain, read_data, save_plain
 from sb3_latentswarm.common.type_aliases import LatentState
 from sb3_latentswarm.config import SwarmConfig
-from sb3_latentswarm.latent_ppo.policies import CRITIC_KEYS, LatentSwarmPolicy, SequenceEvaluation, check_observation_space
+from sb3_latentswarm.latent_ppo.policies import (
+    CRITIC_KEYS,
+    NEW_POLICY_KWARGS,
+    LatentSwarmPolicy,
+    SequenceEvaluation,
+    check_observation_space,
+    with_legacy_defaults,
+)
 from sb3_latentswarm.version import __version__
 
 SelfLatentSwarmPPO = TypeVar("SelfLatentSwarmPPO", bound="LatentSwarmPPO")
@@ -234,6 +241,8 @@ class LatentSwarmPPO(RecurrentPPO):
                 f"{policy_kwargs['normalize_value']}; set it once, on LatentSwarmPPO"
             )
         policy_kwargs["normalize_value"] = bool(normalize_value)
+        # recorded in the model file, so that a later change of a default cannot change how a saved model acts
+        policy_kwargs = {**NEW_POLICY_KWARGS, **policy_kwargs}
         super().__init__(
             policy,
             env,
@@ -405,11 +414,14 @@ class LatentSwarmPPO(RecurrentPPO):
         if pickled:
             data, _, _ = load_from_zip_file(path, device="cpu", custom_objects=custom_objects, load_data=True)
             check_save_format(data, path, PICKLED_SAVE_FORMATS)
+            # files from before an actor option existed were built with its old value (LEGACY_POLICY_KWARGS)
+            custom_objects = {"policy_kwargs": with_legacy_defaults(data.get("policy_kwargs")), **(custom_objects or {})}
             trusted = super().load(path, env=None, device=device, custom_objects=custom_objects)
             path = io.BytesIO()  # from here on the same path as a plain file, so that kwargs meet the same checks
             trusted.save(path)
             raw, _ = read_data(path)
         check_save_format(raw, path)
+        raw = {**raw, "policy_kwargs": with_legacy_defaults(raw.get("policy_kwargs"))}
         model = load_plain(cls, path, raw, device=device, print_system_info=print_system_info, **kwargs)
         model._check_batch_size()
         if env is not None:
@@ -659,7 +671,7 @@ class LatentSwarmPPO(RecurrentPPO):
         for term, value in grad_norms.items():
             self.logger.record(f"train/grad_norm_{term}", value)
         if not self.policy.state_dependent_std:
-            log_std = self.policy.log_std.detach().clamp(*self.policy.log_std_bounds)
+            log_std = self.policy.bound_log_std(self.policy.log_std.detach())
             self.logger.record("train/std", float(log_std.exp().mean()))
         if self.policy.value_normalizer is not None:
             mean, var = self.policy.value_normalizer.mean_var()

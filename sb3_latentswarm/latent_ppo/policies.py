@@ -10,7 +10,8 @@ Per UAV i at step t, in the paper's order (all agents of all swarms at once, gro
 * map (Sec. III-A): mu_t = E_phi(mu_{t-1}, o_t, p_t, m_t^mu) with m_t^mu = 0 when nothing arrived (the asymmetric
   update: the map state never sees a predicted message); decoder D_eta(mu_t) reconstructs M_hat_t
 * task (Sec. III-A): tau_t = F_theta(tau_{t-1}, o_t, e_t, mu_{t-1}, mbar_t)
-* actor (Sec. III-D): Gaussian pi_xi(a | tau_t) with mean and diagonal std from tau_t
+* actor (Sec. III-D): Gaussian pi_xi(a | tau_t) with mean and diagonal std from tau_t (``action_distribution``:
+  the paper's Gaussian, or opt-in its tanh-squashed version whose actions stay in the [-1, 1] box)
 * critic (Sec. III-D): V_omega(s_t), s_t = ({e_t^j}, M_hat_t) read from the global part of the observation
 
 The actor side reads only ``local_obs``, ``proprio`` and ``link_row``; the critic only ``swarm_proprio`` and
@@ -19,18 +20,20 @@ The actor side reads only ``local_obs``, ``proprio`` and ``link_row``; the criti
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
 import torch as th
+import torch.nn.functional as F
 from gymnasium import spaces
-from stable_baselines3.common.distributions import DiagGaussianDistribution
+from stable_baselines3.common.distributions import DiagGaussianDistribution, SquashedDiagGaussianDistribution, TanhBijector
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 
-from sb3_latentswarm.common.checks import check_choice
+from sb3_latentswarm.common.checks import check_choice, check_float
 from sb3_latentswarm.common.observations import ACTOR_KEYS, as_vec_observation
 from sb3_latentswarm.common.type_aliases import LatentState
 from sb3_latentswarm.common.value_norm import ValueNorm
@@ -39,6 +42,67 @@ CRITIC_KEYS = ("swarm_proprio", "global_map")
 REQUIRED_KEYS = ACTOR_KEYS + CRITIC_KEYS
 POSITION_DIMS = 3
 """The first three entries of the proprioceptive state e_t are the (normalized) position p_t."""
+
+ACTION_DISTRIBUTIONS = ("gaussian", "squashed_gaussian")
+"""Values of ``action_distribution``: the paper's diagonal Gaussian, or the same Gaussian followed by tanh."""
+LOG_STD_MAPPINGS = ("tanh", "clamp")
+"""Values of ``log_std_mapping``: how the std head's raw output is bounded to ``log_std_bounds``."""
+NEW_POLICY_KWARGS: dict[str, Any] = {"log_std_mapping": "tanh", "action_distribution": "gaussian"}
+"""The defaults a new model is built with; ``LatentSwarmPPO`` writes them into its ``policy_kwargs`` so that its file
+records them."""
+LEGACY_POLICY_KWARGS: dict[str, Any] = {"log_std_mapping": "clamp", "action_distribution": "gaussian"}
+"""What a model file saved before these keyword arguments existed was built with: it loads with these values and acts
+exactly as before."""
+
+
+def with_legacy_defaults(policy_kwargs: dict[str, Any] | None) -> dict[str, Any]:
+    """The saved ``policy_kwargs`` of a model file, completed with :data:`LEGACY_POLICY_KWARGS` where a key is missing."""
+    return {**LEGACY_POLICY_KWARGS, **(policy_kwargs or {})}
+
+
+def smooth_log_std(raw: th.Tensor, low: float, high: float) -> th.Tensor:
+    """log std = low + (high - low) * (tanh(raw) + 1) / 2, CleanRL's SAC bound: smooth, non-zero slope everywhere.
+
+    Computed as ``high - (high - low) * sigmoid(-2 raw)`` for raw >= 0 and ``low + (high - low) * sigmoid(2 raw)``
+    below (the same function, since (tanh(x) + 1) / 2 = sigmoid(2x)): ``tanh(raw)`` rounds to exactly +-1 in float32
+    once abs(raw) > 9, and its gradient with it, while these forms keep a non-zero gradient up to abs(raw) of about 40
+    (where it reaches float32's smallest normal number).
+
+    :param raw: the std head's output, any shape
+    :return: the log std, same shape, strictly inside (low, high) for abs(raw) < 9
+    """
+    span = high - low
+    return th.where(raw >= 0, high - span * th.sigmoid(-2.0 * raw), low + span * th.sigmoid(2.0 * raw))
+
+
+def inverse_smooth_log_std(log_std: float, low: float, high: float) -> float:
+    """The raw output that :func:`smooth_log_std` maps to ``log_std`` (which must lie strictly inside (low, high))."""
+    return math.atanh(2.0 * (log_std - low) / (high - low) - 1.0)
+
+
+class TanhSquashedGaussianDistribution(SquashedDiagGaussianDistribution):
+    """SB3's :class:`~stable_baselines3.common.distributions.SquashedDiagGaussianDistribution` (a = tanh(u),
+    u ~ N(mean, std^2)) with the exact change of variables in :meth:`log_prob`.
+
+    SB3 subtracts ``log(1 - a^2 + 1e-6)``: the 1e-6 shifts the log-probability of a saturated action by up to 1.6
+    nats per dimension, and it flattens the sampled entropy estimate once abs(u) passes about 7, so that estimate stops
+    pulling the actor back from saturation. Here log(da/du) = log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u)),
+    exact and finite for every u. ``entropy()`` stays ``None`` (no closed form): see
+    :meth:`LatentSwarmPolicy.action_entropy`.
+    """
+
+    def log_prob(self, actions: th.Tensor, gaussian_actions: th.Tensor | None = None) -> th.Tensor:
+        """log pi(a) = log N(u; mean, std^2) - sum_k log(1 - tanh(u_k)^2), (B,).
+
+        :param actions: squashed actions a in [-1, 1], (B, action_dim)
+        :param gaussian_actions: u with a = tanh(u), when known; otherwise u = atanh(a), with a clipped to
+            [-1 + eps, 1 - eps] (float eps) as SB3 does, so that a saturated a = +-1 has a finite log-probability
+        """
+        if gaussian_actions is None:
+            gaussian_actions = TanhBijector.inverse(actions)
+        log_prob = DiagGaussianDistribution.log_prob(self, gaussian_actions)
+        log_det = 2.0 * (math.log(2.0) - gaussian_actions - F.softplus(-2.0 * gaussian_actions))
+        return log_prob - log_det.sum(dim=-1)
 
 
 class StepOutput(NamedTuple):
@@ -108,9 +172,19 @@ class LatentSwarmPolicy(BasePolicy):
     :param decoder_hidden: hidden width of the map decoder D_eta
     :param critic_hidden: hidden width of the centralized critic V_omega
     :param actor_hidden: hidden width of the actor head on tau_t
-    :param log_std_init: initial log std of the Gaussian actor
-    :param log_std_bounds: the log std is clamped to this range (``(-5, 2)`` by default; ``(-5, 0)`` keeps the std at
-        most 1, half the width of the [-1, 1] action box, so most sampled actions land inside it)
+    :param log_std_init: initial log std of the Gaussian actor (the std head's bias, or the state-independent
+        parameter, is set so that the mapped log std equals it)
+    :param log_std_bounds: the range of the log std (``(-5, 2)`` by default; ``(-5, 0)`` keeps the std at most 1, half
+        the width of the [-1, 1] action box, so most sampled actions land inside it)
+    :param log_std_mapping: how the std head's raw output x is bounded: ``"tanh"`` (new models):
+        log std = lo + (hi - lo) (tanh(x) + 1) / 2 as CleanRL's SAC (:func:`smooth_log_std`), non-zero gradient at every
+        x; ``"clamp"``: clamp(x, lo, hi), zero gradient outside the bounds (models saved before this option existed
+        load with it, see :data:`LEGACY_POLICY_KWARGS`). ``log_std_init`` must lie strictly inside the bounds for
+        ``"tanh"``
+    :param action_distribution: ``"gaussian"``: the paper's diagonal Gaussian (actions outside the box are clipped by
+        the env); ``"squashed_gaussian"``: a = tanh(u), u Gaussian (:class:`TanhSquashedGaussianDistribution`), every
+        action inside the [-1, 1] box, the mean action is tanh(mean). Its entropy has no closed form: the PPO entropy
+        bonus uses a one-sample estimate (:meth:`action_entropy`). Needs a Box action space bounded by [-1, 1]
     :param state_dependent_std: ``True``: the log std is a linear head on tau_t like the mean (the paper's pi(a | tau));
         ``False``: one learned log std per action dimension, as SB3's default Gaussian policy
     :param normalize_value: the critic learns normalized returns (MAPPO's ValueNorm); :meth:`predict_values` returns
@@ -143,6 +217,8 @@ class LatentSwarmPolicy(BasePolicy):
         actor_hidden: int = 64,
         log_std_init: float = 0.0,
         log_std_bounds: tuple[float, float] = (-5.0, 2.0),
+        log_std_mapping: str = NEW_POLICY_KWARGS["log_std_mapping"],
+        action_distribution: str = NEW_POLICY_KWARGS["action_distribution"],
         state_dependent_std: bool = True,
         normalize_value: bool = False,
         value_norm_beta: float = 0.995,
@@ -164,6 +240,13 @@ class LatentSwarmPolicy(BasePolicy):
         check_observation_space(observation_space)
         if not isinstance(action_space, spaces.Box):
             raise TypeError(f"LatentSwarmPolicy needs a Box action space, got {action_space}")
+        check_choice("log_std_mapping", log_std_mapping, LOG_STD_MAPPINGS)
+        check_choice("action_distribution", action_distribution, ACTION_DISTRIBUTIONS)
+        squashed = action_distribution == "squashed_gaussian"
+        if squashed and not (np.all(action_space.low == -1.0) and np.all(action_space.high == 1.0)):
+            raise ValueError(
+                f"action_distribution='squashed_gaussian' produces actions in [-1, 1]; the action space is {action_space}"
+            )
         if optimizer_kwargs is None:
             optimizer_kwargs = {"eps": 1e-5}
         super().__init__(
@@ -172,6 +255,7 @@ class LatentSwarmPolicy(BasePolicy):
             optimizer_class=optimizer_class,
             optimizer_kwargs=optimizer_kwargs,
             normalize_images=False,
+            squash_output=squashed,
         )
         for name, value in (("latent_dim", latent_dim), ("predictor_hidden", predictor_hidden)):
             if int(value) < 1:
@@ -187,8 +271,17 @@ class LatentSwarmPolicy(BasePolicy):
         self.actor_hidden = actor_hidden
         self.log_std_init = log_std_init
         self.log_std_bounds = _check_log_std_bounds(log_std_bounds)
-        if not self.log_std_bounds[0] <= log_std_init <= self.log_std_bounds[1]:
-            raise ValueError(f"log_std_init must lie in log_std_bounds {self.log_std_bounds}, got {log_std_init}")
+        self.log_std_mapping = log_std_mapping
+        self.action_distribution_name = action_distribution
+        low, high = self.log_std_bounds
+        if log_std_mapping == "tanh":
+            check_float(f"log_std_init (log_std_mapping='tanh', log_std_bounds {self.log_std_bounds})", log_std_init,
+                        low, high, low_open=True, high_open=True)
+            self._raw_log_std_init = inverse_smooth_log_std(float(log_std_init), low, high)
+        else:
+            if not low <= log_std_init <= high:
+                raise ValueError(f"log_std_init must lie in log_std_bounds {self.log_std_bounds}, got {log_std_init}")
+            self._raw_log_std_init = float(log_std_init)
         self.state_dependent_std = bool(state_dependent_std)
         self.normalize_value = bool(normalize_value)
         self.value_norm_beta = value_norm_beta
@@ -224,19 +317,21 @@ class LatentSwarmPolicy(BasePolicy):
         self.memory_encoder = nn.GRUCell(d_tau + o_dim + d_msg, d_rho)
         # P_zeta(rho_t, o_t, e_t) -> mhat_t
         self.message_predictor = _mlp([d_rho + o_dim + e_dim, predictor_hidden, d_msg])
-        # pi_xi(a | tau_t): mean and diagonal log std
+        # pi_xi(a | tau_t): mean and diagonal log std (raw outputs, bounded by bound_log_std)
         self.actor_trunk = nn.Sequential(nn.Linear(d_tau, actor_hidden), nn.Tanh())
         self.action_mean = nn.Linear(actor_hidden, self.action_dim)
         if self.state_dependent_std:
             self.action_log_std = nn.Linear(actor_hidden, self.action_dim)
         else:
-            self.log_std = nn.Parameter(th.full((self.action_dim,), float(log_std_init)))
+            self.log_std = nn.Parameter(th.full((self.action_dim,), self._raw_log_std_init))
         # V_omega(s_t), s_t = ({e_t^j}_j, M_hat_t): map encoder + mean-pooled proprio encoder, N-independent
         self.critic_map = nn.Sequential(nn.Linear(self.n_cells, critic_hidden), nn.ReLU())
         self.critic_agents = nn.Sequential(nn.Linear(e_dim, critic_hidden // 4), nn.ReLU())
         self.critic_head = _mlp([critic_hidden + critic_hidden // 4, critic_hidden, 1], nn.ReLU)
         self.value_normalizer = ValueNorm(beta=value_norm_beta) if self.normalize_value else None
-        self.action_dist = DiagGaussianDistribution(self.action_dim)
+        self.action_dist = (
+            TanhSquashedGaussianDistribution(self.action_dim) if squashed else DiagGaussianDistribution(self.action_dim)
+        )
         self._compiled_latent_step: Callable[..., StepOutput] | None = None
 
         if ortho_init:
@@ -252,7 +347,7 @@ class LatentSwarmPolicy(BasePolicy):
         nn.init.orthogonal_(self.action_mean.weight, gain=0.01)
         if self.state_dependent_std:
             nn.init.orthogonal_(self.action_log_std.weight, gain=0.01)
-            nn.init.constant_(self.action_log_std.bias, self.log_std_init)
+            nn.init.constant_(self.action_log_std.bias, self._raw_log_std_init)
         nn.init.orthogonal_(self.critic_head[-1].weight, gain=1.0)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
@@ -268,6 +363,8 @@ class LatentSwarmPolicy(BasePolicy):
             actor_hidden=self.actor_hidden,
             log_std_init=self.log_std_init,
             log_std_bounds=self.log_std_bounds,
+            log_std_mapping=self.log_std_mapping,
+            action_distribution=self.action_distribution_name,
             state_dependent_std=self.state_dependent_std,
             normalize_value=self.normalize_value,
             value_norm_beta=self.value_norm_beta,
@@ -371,15 +468,53 @@ class LatentSwarmPolicy(BasePolicy):
         return StepOutput(new_state, received_message, predicted_message, has_message, sent_message)
 
     # ------------------------------------------------------------------ heads
+    def bound_log_std(self, raw: th.Tensor) -> th.Tensor:
+        """The log std for a raw std output (``log_std_mapping``), inside ``log_std_bounds``; same shape."""
+        if self.log_std_mapping == "clamp":
+            return raw.clamp(*self.log_std_bounds)
+        return smooth_log_std(raw, *self.log_std_bounds)
+
     def action_distribution(self, task_state: th.Tensor) -> DiagGaussianDistribution:
-        """pi_xi(a | tau_t): Gaussian with state-dependent mean and diagonal std (Sec. III-D)."""
+        """pi_xi(a | tau_t) (Sec. III-D): Gaussian with state-dependent mean and diagonal std, tanh-squashed when
+        ``action_distribution="squashed_gaussian"`` (then a :class:`TanhSquashedGaussianDistribution`).
+
+        :param task_state: tau_t, (B, d_tau)
+        :return: SB3 distribution over (B, action_dim) actions; ``.distribution`` is the Gaussian before squashing
+        """
         hidden = self.actor_trunk(task_state)
         mean_actions = self.action_mean(hidden)
         if self.state_dependent_std:
             log_std = self.action_log_std(hidden)
         else:
             log_std = self.log_std.expand_as(mean_actions)
-        return self.action_dist.proba_distribution(mean_actions, log_std.clamp(*self.log_std_bounds))
+        return self.action_dist.proba_distribution(mean_actions, self.bound_log_std(log_std))
+
+    def actions_from_noise(self, task_state: th.Tensor, noise: th.Tensor | np.ndarray | None = None) -> th.Tensor:
+        """Actions of pi_xi(a | tau_t) for given standard-normal noise: the one place that turns the actor's outputs
+        into actions outside SB3's sampling (evaluation draws the noise from its own per-episode generators).
+
+        :param task_state: tau_t, (B, d_tau)
+        :param noise: eps ~ N(0, I), (B, action_dim); ``None``: the mean action
+        :return: (B, action_dim): mean + std * eps (mean when ``noise`` is None), passed through tanh for the squashed
+            Gaussian; in the noise's dtype when it is wider than float32
+        """
+        gaussian = self.action_distribution(task_state).distribution
+        actions = gaussian.mean
+        if noise is not None:
+            actions = actions + gaussian.stddev * th.as_tensor(noise, device=actions.device)
+        return th.tanh(actions) if self.squash_output else actions
+
+    @staticmethod
+    def action_entropy(distribution: DiagGaussianDistribution) -> th.Tensor:
+        """The entropy of each row of ``distribution``, (B,): exact for the Gaussian; for the squashed Gaussian, which
+        has no closed form, the one-sample estimate -log pi(tanh(u)) with a reparameterized u ~ N(mean, std^2), as
+        SB3's SAC does. Its gradient is an unbiased estimate of the entropy's gradient (SB3's PPO instead uses
+        -log pi of the stored action, whose expected gradient is zero at the rollout's policy)."""
+        entropy = distribution.entropy()
+        if entropy is not None:
+            return entropy
+        gaussian_actions = distribution.distribution.rsample()
+        return -distribution.log_prob(th.tanh(gaussian_actions), gaussian_actions)
 
     @property
     def critic_parameters(self) -> list[nn.Parameter]:
@@ -418,6 +553,8 @@ class LatentSwarmPolicy(BasePolicy):
         step = self.latent_step(obs, latent_state, episode_starts)
         distribution = self.action_distribution(step.state.task_state)
         actions = distribution.get_actions(deterministic=deterministic)
+        # from the action itself, as the replay in evaluate_sequences computes it from the stored one (for the squashed
+        # Gaussian u = atanh(a), not the sampled u: atanh(tanh(u)) differs from u by up to 1e-3 in float32 near |a| = 1)
         log_prob = distribution.log_prob(actions)
         values = self.predict_values(obs)
         return actions, values, log_prob, step.state
@@ -453,7 +590,7 @@ class LatentSwarmPolicy(BasePolicy):
         distribution = self.action_distribution(task_state.flatten(0, 1))
         flat_actions = actions.flatten(0, 1)
         log_prob = distribution.log_prob(flat_actions).view(n_steps, -1)
-        entropy = distribution.entropy().view(n_steps, -1)
+        entropy = self.action_entropy(distribution).view(n_steps, -1)
         critic_obs = {key: obs[key].flatten(0, 1) for key in CRITIC_KEYS}
         values = self.critic_output(critic_obs).view(n_steps, -1)
         map_reconstruction = self.decode_map(th.stack(map_states))

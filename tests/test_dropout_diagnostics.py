@@ -139,3 +139,16 @@ def test_new_conditions_and_columns_in_evaluate(model):
     assert (df["dropout_share"] == 1.0).all() and (df["dropout_run_mean"] == df["episode_length"]).all()  # no_comm
     # every no_comm step of an episode is in one run: the depths 1 .. T fill every bin a 30-step episode reaches
     assert df[list(DEPTH_COLUMNS)].notna().all().all()
+
+
+def test_every_condition_is_accepted_by_the_callback_and_the_sweep():
+    from sb3_latentswarm.callbacks import SwarmEvalCallback
+    from sb3_latentswarm.experiments.trial import all_conditions, conditions_for
+
+    for condition in CONDITION_TABLE:
+        assert SwarmEvalCallback(eval_freq=10, condition=condition).condition == condition
+    assert set(all_conditions()) == set(CONDITION_TABLE)
+    # the independent learner has no substitute or memory to switch: only the link conditions remain
+    assert conditions_for("independent", list(CONDITION_TABLE)) == ["proposed", "full_comm", "no_comm", "full_comm_in_range"]
+    with pytest.raises(ValueError, match="allowed conditions"):
+        SwarmEvalCallback(eval_freq=10, condition="hold_first")

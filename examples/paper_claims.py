@@ -1,9 +1,12 @@
 """The paper's claims as testable targets, checked on a finished (or partial) `sb3-latentswarm sweep` output.
 
-Reads the sweep's ``scores.csv`` (one row per trial and evaluation cell: a run's mean over the cell's episodes) and
-writes ``claims.md`` / ``claims.csv`` beside it: each claim, its target, the measured across-seed means with 95 %
-stratified-bootstrap intervals (the sweep's aggregation), and whether the target is met. Nothing is tuned here: the
-cells are the ones the sweep evaluated, on held-out seeds.
+Reads the sweep's run scores (one row per trial and evaluation cell: a run's mean over the cell's episodes) and writes
+``claims.md`` / ``claims.csv``: each claim, its target, the measured across-seed means with 95 % stratified-bootstrap
+intervals (the sweep's aggregation), and whether the target is met, for each action mode of ``--actions``: by
+default sampled actions first (the paper's protocol, Sec. III-D: commands are sampled from the Gaussian policy at
+execution), then mean actions. A mode the sweep evaluated in is read from its ``scores.csv``; another mode is
+measured here on the sweep's saved models, in the same cells, on the same held-out episode seeds, and its scores are
+written as ``scores_<mode>.csv`` in ``--output`` (reused on the next call). Nothing is tuned here.
 
     python examples/paper_claims.py --sweep runs/sweeps/coordination --burst-cells table1=10 burst30=30
 
@@ -25,8 +28,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from sb3_latentswarm.evaluation import to_markdown
+from sb3_latentswarm.evaluation import seed_range, to_markdown
 from sb3_latentswarm.experiments.aggregate import aggregate_scores
+
+ACTION_MODES = ("sampled", "mean")
+"""``--actions`` choices; ``deterministic`` of ``evaluate`` is ``mode == "mean"``."""
 
 PAPER_COLLISIONS = 8.7
 """Collisions per episode of the paper's Proposed model (Table I, N = 3)."""
@@ -110,19 +116,59 @@ def check_claims(scores: pd.DataFrame, base_cell: str, burst_cells: dict[str, fl
     return rows
 
 
+def sweep_mode(spec: dict) -> str:
+    """The action mode the sweep evaluated in (sweeps before the ``deterministic`` key used mean actions)."""
+    return "mean" if spec.get("deterministic", True) else "sampled"
+
+
+def evaluate_sweep(sweep: Path, spec: dict, mode: str) -> pd.DataFrame:
+    """Run scores of the sweep's finished trials evaluated with ``mode`` actions, in the sweep's cells and episodes.
+
+    The same cells (``spec["eval_sets"]``), episode count and seeds as the sweep's own evaluation
+    (:func:`~sb3_latentswarm.experiments.trial.evaluate_sets`, :func:`~sb3_latentswarm.experiments.trial.run_scores`).
+    The independent learner's sampled actions come from torch's generator, seeded with the sweep's ``eval_seed``.
+    """
+    import torch as th
+
+    from sb3_latentswarm import LatentSwarmPPO
+    from sb3_latentswarm.baselines import IndependentRecurrentPPO
+    from sb3_latentswarm.experiments.report import CELL_COLUMNS
+    from sb3_latentswarm.experiments.trial import EvalSet, evaluate_sets, finished_trial_dirs, run_scores, trial_preset
+
+    eval_sets = [EvalSet.from_dict(s) for s in spec["eval_sets"]]
+    frames = []
+    for folder in finished_trial_dirs(sweep):
+        record = json.loads((folder / "trial.json").read_text())
+        variant = record["variant"]
+        preset = trial_preset(spec["preset"], spec["overrides"], record["grid_point"])
+        learner = IndependentRecurrentPPO if variant == "independent" else LatentSwarmPPO
+        model = learner.load(folder / "model.zip", device="cpu")
+        print(f"evaluating {record['trial_id']} with {mode} actions", flush=True)
+        with th.random.fork_rng():
+            th.manual_seed(spec["eval_seed"])
+            episodes = evaluate_sets(
+                model, variant, preset.config, eval_sets, spec["eval_episodes"], spec["eval_seed"], mode == "mean"
+            )
+        frames.append(episodes.assign(variant=variant, train_seed=record["train_seed"], trial_id=record["trial_id"]))
+    if not frames:
+        raise ValueError(f"{sweep}: no finished trial with a model to evaluate with {mode} actions")
+    return run_scores(pd.concat(frames, ignore_index=True), [*CELL_COLUMNS, "variant", "train_seed", "trial_id"])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sweep", required=True, help="a sweep output folder (with scores.csv and sweep.json)")
     parser.add_argument("--base-cell", default="table1", help="the cell at the training config (Table I's conditions)")
     parser.add_argument("--burst-cells", nargs="*", default=[], metavar="CELL=MEAN_OUTAGE_STEPS",
                         help="cells with bursty outages, and their mean outage length")
+    parser.add_argument("--actions", nargs="+", choices=ACTION_MODES, default=list(ACTION_MODES),
+                        help="action modes, in the order reported (default: sampled, the paper's protocol, then mean)")
     parser.add_argument("--output", default=None, help="folder for claims.md/csv (default: the sweep folder)")
     args = parser.parse_args()
     sweep = Path(args.sweep)
     if not (sweep / "scores.csv").exists():
         parser.error(f"--sweep: no scores.csv in {sweep} (run the sweep, or write its report, first)")
     spec = json.loads((sweep / "sweep.json").read_text())
-    scores = pd.read_csv(sweep / "scores.csv")
     burst_cells = {}
     for item in args.burst_cells:
         name, _, length = item.partition("=")
@@ -130,15 +176,31 @@ def main() -> None:
     p_fail_cells = [
         s["name"] for s in spec["eval_sets"] if set(s["overrides"]) == {"p_fail"} and s["overrides"]["p_fail"] <= 0.5
     ]
-    rows = check_claims(scores, args.base_cell, burst_cells, p_fail_cells)
-    table = pd.DataFrame(rows)
     output = Path(args.output) if args.output else sweep
     output.mkdir(parents=True, exist_ok=True)
-    table.to_csv(output / "claims.csv", index=False)
-    seeds = scores.groupby("variant")["train_seed"].nunique().to_dict()
+    seeds = (f"episode {seed_range(spec['eval_seed'], spec['eval_episodes'])}" if "eval_seed" in spec
+             else "the sweep's episode seeds")
+    tables, sections = [], []
+    for mode in dict.fromkeys(args.actions):  # in the given order, each once
+        if mode == sweep_mode(spec):
+            scores, source = pd.read_csv(sweep / "scores.csv"), "the sweep's `scores.csv`"
+        else:
+            path = output / f"scores_{mode}.csv"
+            if not path.exists():
+                evaluate_sweep(sweep, spec, mode).to_csv(path, index=False)
+            scores, source = pd.read_csv(path), f"`{path.name}`, measured by this script on the sweep's models"
+        table = pd.DataFrame(check_claims(scores, args.base_cell, burst_cells, p_fail_cells))
+        table.insert(0, "actions", mode)
+        tables.append(table)
+        note = " (the paper's protocol, Sec. III-D)" if mode == "sampled" else " (the Gaussian's mean)"
+        sections.append(f"## {mode.capitalize()} actions{note}\n\nScores from {source}; {seeds}.\n\n"
+                        + to_markdown(table.drop(columns="actions")) + "\n")
+    pd.concat(tables, ignore_index=True).to_csv(output / "claims.csv", index=False)
+    seeds_per_variant = pd.read_csv(sweep / "scores.csv").groupby("variant")["train_seed"].nunique().to_dict()
     header = (f"Claims on sweep `{sweep}` (preset `{spec['preset']}`, overrides {spec['overrides']}; training seeds "
-              f"per variant: {seeds}). Means across training seeds with 95 % stratified-bootstrap intervals.\n\n")
-    markdown = header + to_markdown(table) + "\n"
+              f"per variant: {seeds_per_variant}). Means across training seeds with 95 % stratified-bootstrap "
+              "intervals.\n\n")
+    markdown = header + "\n".join(sections)
     (output / "claims.md").write_text(markdown)
     print(markdown)
 

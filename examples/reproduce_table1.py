@@ -1,13 +1,17 @@
 """Regenerate Table I of the paper (ablations, left; p_f sweep, right) and the comparisons it does not have.
 
 Trains ``LatentSwarmPPO`` on a preset (or loads ``--model``), evaluates the five conditions of Sec. IV and the p_f sweep
-over ``eval_episodes`` Monte Carlo runs each, adds the baselines (random, lawnmower, frontier explorer with explicit
-map sharing, independent RecurrentPPO without messages), and writes into ``--output`` (default
-``runs/table1_PRESET/``; results published in the documentation are copied to ``docs/results/`` by hand):
+over ``eval_episodes`` Monte Carlo runs each, with sampled actions (the paper's protocol, Sec. III-D: commands are
+sampled from the Gaussian policy at execution) and with mean actions beside them, on held-out episode seeds
+(default from :data:`~sb3_latentswarm.evaluation.HELD_OUT_SEED`, never a training env copy's), adds the baselines
+(random, lawnmower, frontier explorer with explicit map sharing, independent RecurrentPPO without messages), and
+writes into ``--output`` (default ``runs/table1_PRESET/``; results published in the documentation are copied to
+``docs/results/`` by hand):
 
-* ``conditions.csv`` / ``conditions.md`` (ours next to the paper's numbers), ``p_fail_sweep.csv`` / ``.md``,
-  ``baselines.csv`` / ``.md``
-* ``coverage_vs_time.png`` (mean coverage against time per condition) and ``coverage_vs_p_fail.png``
+* ``conditions.csv`` / ``conditions.md`` (ours next to the paper's numbers; sampled actions first, then mean actions;
+  the ``actions`` column of the CSV says which), ``p_fail_sweep.csv`` / ``.md``, ``baselines.csv`` / ``.md``
+* ``coverage_vs_time.png`` (mean coverage against time per condition) and ``coverage_vs_p_fail.png`` (sampled
+  actions; ``*_mean_actions.png`` beside them)
 * ``run.md``: command, commit, machine, wall times, seeds
 
     python examples/reproduce_table1.py --preset smoke            # seconds, checks the pipeline
@@ -40,15 +44,22 @@ from sb3_latentswarm.common.run_record import git_commit, write_run_record
 from sb3_latentswarm.envs import make_vec_env
 from sb3_latentswarm.evaluation import (
     CONDITION_LABELS,
+    HELD_OUT_SEED,
     PAPER_TABLE1_P_FAIL,
+    check_held_out,
     evaluate,
     evaluate_conditions,
     evaluate_p_fail_sweep,
+    seed_range,
     side_by_side,
     summarize,
     to_markdown,
 )
 from sb3_latentswarm.presets import PRESETS, get_preset
+
+ACTION_MODES = ("both", "sampled", "mean")
+DETERMINISTIC = {"sampled": False, "mean": True}
+"""``evaluate(deterministic=...)`` of each action mode."""
 
 
 def option(default, help: str):  # noqa: A002 - argparse's name
@@ -61,15 +72,18 @@ class Args:
     preset: str = option("fast", "experiment budget: paper, fast, demo or smoke")
     model: str | None = option(None, "evaluate this saved model instead of training one")
     output: str | None = option(None, "result folder (default: runs/table1_PRESET)")
-    seed: int = option(0, "seed of training and of the evaluation episodes (episode k uses env seed seed + k)")
+    seed: int = option(0, "training seed (env copy c uses env seed seed + c) and the random planner's seed")
+    eval_seed: int = option(
+        HELD_OUT_SEED, "first evaluation episode seed (episode k uses env seed eval_seed + k; default: held out from training)"
+    )
     episodes: int | None = option(None, "Monte Carlo runs per condition (default: the preset's, 10 for paper and fast)")
     no_independent_ppo: bool = option(False, "skip training the independent RecurrentPPO baseline")
     baseline_timesteps: int | None = option(None, "agent-steps of the independent RecurrentPPO (default: the preset's)")
     independent_model: str | None = option(
         None, "evaluate this saved independent RecurrentPPO (independent_ppo.zip of an earlier run) instead of training one"
     )
-    stochastic: bool = option(
-        False, "sample the learned policies' Gaussian actions (default: act with the mean, as SB3's evaluate_policy does)"
+    actions: str = option(
+        "both", "actions of the learned policies: sampled (the paper's protocol), mean, or both (sampled first)"
     )
     model_notes: str | None = option(None, "how a --model was trained, written into run.md next to its path")
     device: str = option("auto", "torch device: auto, cpu or cuda")
@@ -85,6 +99,8 @@ def parse_args() -> Args:
             parser.add_argument(flag, action="store_true", help=text)
         elif spec.name == "preset":
             parser.add_argument(flag, default=spec.default, choices=sorted(PRESETS), help=f"{text} (default: %(default)s)")
+        elif spec.name == "actions":
+            parser.add_argument(flag, default=spec.default, choices=ACTION_MODES, help=f"{text} (default: %(default)s)")
         else:
             kind = int if spec.type in ("int", "int | None") else str
             parser.add_argument(flag, type=kind, default=spec.default, help=text)
@@ -138,11 +154,13 @@ def main() -> None:
     preset = get_preset(args.preset)
     if args.episodes:
         preset = dataclasses.replace(preset, eval_episodes=args.episodes)
-    config, episodes, seed = preset.config, preset.eval_episodes, args.seed
+    config, episodes, seed, eval_seed = preset.config, preset.eval_episodes, args.seed, args.eval_seed
+    if not args.model:  # the episodes must not replay the first episode of a training env copy
+        check_held_out(eval_seed, episodes, seed, preset.n_envs)
     output = Path(args.output or f"runs/table1_{preset.name}")
     output.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
-    deterministic = not args.stochastic  # for the learned policies; the planners have their own rules
+    modes = ["sampled", "mean"] if args.actions == "both" else [args.actions]  # the learned policies'; planners have rules
     commit = git_commit()  # the code that runs, before anything is written
 
     start = time.perf_counter()
@@ -157,30 +175,41 @@ def main() -> None:
         trained = f"trained here for {preset.total_timesteps:,} agent-steps ({preset.updates} updates), seed {seed}"
     timings["LatentSwarmPPO loading" if args.model else "LatentSwarmPPO training"] = time.perf_counter() - start
 
-    # Table I, left: the five conditions
+    # Table I, left: the five conditions; right: the p_f sweep; in every action mode, the same episodes
     start = time.perf_counter()
-    conditions, condition_curves = evaluate_conditions(
-        model,
-        p_fail=config.p_fail,
-        n_episodes=episodes,
-        seed=seed,
-        config=config,
-        return_curves=True,
-        deterministic=deterministic,
-    )
+    condition_frames, sweep_frames, condition_tables, sweep_tables = [], [], {}, {}
+    for mode in modes:
+        conditions, condition_curves = evaluate_conditions(
+            model,
+            p_fail=config.p_fail,
+            n_episodes=episodes,
+            seed=eval_seed,
+            config=config,
+            return_curves=True,
+            deterministic=DETERMINISTIC[mode],
+        )
+        condition_frames.append(conditions.assign(actions=mode))
+        condition_tables[mode] = side_by_side(summarize(conditions, by="condition"))
+        suffix = "" if mode == modes[0] else f"_{mode}_actions"
+        plot_curves(
+            condition_curves,
+            CONDITION_LABELS,
+            output / f"coverage_vs_time{suffix}.png",
+            f"Coverage against time ({preset.name}, {mode} actions)",
+        )
+        sweep = evaluate_p_fail_sweep(
+            model, p_fails=preset.p_fails, n_episodes=episodes, seed=eval_seed, config=config,
+            deterministic=DETERMINISTIC[mode],
+        )
+        sweep_frames.append(sweep.assign(actions=mode))
+        sweep_tables[mode] = side_by_side(summarize(sweep, by="p_fail"))
+        plot_p_fail(sweep, PAPER_TABLE1_P_FAIL, output / f"coverage_vs_p_fail{suffix}.png")
+    conditions = pd.concat(condition_frames, ignore_index=True)
     conditions.to_csv(output / "conditions.csv", index=False)
-    condition_summary = summarize(conditions, by="condition")
-    (output / "conditions.md").write_text(to_markdown(side_by_side(condition_summary)) + "\n")
-    plot_curves(condition_curves, CONDITION_LABELS, output / "coverage_vs_time.png", f"Coverage against time ({preset.name})")
-
-    # Table I, right: the p_f sweep
-    sweep = evaluate_p_fail_sweep(
-        model, p_fails=preset.p_fails, n_episodes=episodes, seed=seed, config=config, deterministic=deterministic
-    )
-    sweep.to_csv(output / "p_fail_sweep.csv", index=False)
-    sweep_summary = summarize(sweep, by="p_fail")
-    (output / "p_fail_sweep.md").write_text(to_markdown(side_by_side(sweep_summary)) + "\n")
-    plot_p_fail(sweep, PAPER_TABLE1_P_FAIL, output / "coverage_vs_p_fail.png")
+    pd.concat(sweep_frames, ignore_index=True).to_csv(output / "p_fail_sweep.csv", index=False)
+    seeds = seed_range(eval_seed, episodes)
+    (output / "conditions.md").write_text(_tables_by_mode(condition_tables, seeds) + "\n")
+    (output / "p_fail_sweep.md").write_text(_tables_by_mode(sweep_tables, seeds) + "\n")
     timings["evaluation of conditions and p_f sweep"] = time.perf_counter() - start
 
     # Beyond the paper: classical planners and an independent learner, same env, metrics and seeds
@@ -188,11 +217,12 @@ def main() -> None:
     rows = []
     planners = {"random": RandomPlanner(config, seed=seed), "lawnmower": LawnmowerPlanner(config)}
     for name, planner in planners.items():
-        rows.append(evaluate(planner, "proposed", n_episodes=episodes, seed=seed, config=config).assign(condition=name))
+        frame = evaluate(planner, "proposed", n_episodes=episodes, seed=eval_seed, config=config)
+        rows.append(frame.assign(condition=name, actions="planner"))
     frontier = FrontierPlanner(config)
     for condition in ("proposed", "full_comm", "no_comm"):
-        frame = evaluate(frontier, condition, n_episodes=episodes, seed=seed, config=config)
-        rows.append(frame.assign(condition=f"frontier ({condition})"))
+        frame = evaluate(frontier, condition, n_episodes=episodes, seed=eval_seed, config=config)
+        rows.append(frame.assign(condition=f"frontier ({condition})", actions="planner"))
     if args.independent_model:
         independent = IndependentRecurrentPPO.load(args.independent_model, device=args.device)
     elif (args.baseline_timesteps or preset.baseline_timesteps) and not args.no_independent_ppo:
@@ -201,36 +231,53 @@ def main() -> None:
         independent.save(output / "independent_ppo.zip")
     else:
         independent = None
-    if independent is not None:
-        steps = independent.model.num_timesteps
-        frame = evaluate(independent, "proposed", n_episodes=episodes, seed=seed, config=config, deterministic=deterministic)
-        rows.append(frame.assign(condition=f"independent RecurrentPPO ({steps:,} steps)"))
-    rows.append(conditions[conditions["condition"] == "proposed"].assign(condition="LatentSwarmPPO (proposed)"))
+    for mode in modes:
+        if independent is not None:
+            steps = independent.model.num_timesteps
+            with th.random.fork_rng():  # its sampled actions come from torch's generator: seed it, restore it after
+                th.manual_seed(eval_seed)
+                frame = evaluate(
+                    independent, "proposed", n_episodes=episodes, seed=eval_seed, config=config,
+                    deterministic=DETERMINISTIC[mode],
+                )
+            rows.append(frame.assign(condition=f"independent RecurrentPPO ({steps:,} steps, {mode})", actions=mode))
+        proposed = conditions[(conditions["condition"] == "proposed") & (conditions["actions"] == mode)]
+        rows.append(proposed.assign(condition=f"LatentSwarmPPO (proposed, {mode})"))
     baselines = pd.concat(rows, ignore_index=True)
     baselines.to_csv(output / "baselines.csv", index=False)
     baseline_summary = summarize(baselines, by="condition")
-    (output / "baselines.md").write_text(to_markdown(baseline_summary) + "\n")
+    (output / "baselines.md").write_text(f"Episode {seeds}.\n\n" + to_markdown(baseline_summary) + "\n")
     timings["baselines"] = time.perf_counter() - start
 
-    actions = "stochastic (sampled)" if args.stochastic else "deterministic (mean)"
     facts = [
         f"model: {trained}",
         f"preset: {preset.description}",
-        f"evaluation: {episodes} episodes per row, env seeds {seed}..{seed + episodes - 1}, {actions} actions, "
-        f"p_f = {config.p_fail} unless swept",
+        f"evaluation: {episodes} episodes per row, env {seeds} (held out from the training env seeds "
+        f"{seed}..{seed + preset.n_envs - 1} when trained here), actions of the learned policies: "
+        f"{' and '.join(modes)}, p_f = {config.p_fail} unless swept",
         *(f"wall time, {name}: {seconds:.0f} s" for name, seconds in timings.items()),
     ]
     body = [
         "## Conditions (Table I, left)\n",
-        to_markdown(side_by_side(condition_summary)),
+        _tables_by_mode(condition_tables, seeds, level="###"),
         "",
         "## p_f sweep (Table I, right)\n",
-        to_markdown(side_by_side(sweep_summary)),
+        _tables_by_mode(sweep_tables, seeds, level="###"),
         "",
         "## Baselines (not in the paper)\n",
+        f"Episode {seeds}.\n",
         to_markdown(baseline_summary),
     ]
     write_run_record(output, f"Table I run: preset `{preset.name}`", commit, facts, body, device=model.device)
+
+
+def _tables_by_mode(tables: dict[str, pd.DataFrame], seeds: str, level: str = "##") -> str:
+    """One markdown table per action mode, sampled (the paper's protocol) first, each headed by its mode and seeds."""
+    parts = []
+    for mode, table in tables.items():
+        note = " (the paper's protocol, Sec. III-D)" if mode == "sampled" else " (the Gaussian's mean)"
+        parts += [f"{level} {mode.capitalize()} actions{note}, episode {seeds}\n", to_markdown(table), ""]
+    return "\n".join(parts).rstrip()
 
 
 if __name__ == "__main__":

@@ -14,9 +14,9 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_latentswarm.common.checks import check_bool, check_choice, check_float, check_int
+from sb3_latentswarm.common.checks import check_bool, check_float, check_int
 from sb3_latentswarm.config import SwarmConfig
-from sb3_latentswarm.evaluation import CONDITIONS, EXTRA_CONDITIONS, evaluate
+from sb3_latentswarm.evaluation import HELD_OUT_SEED, check_condition, evaluate
 
 
 def _check_folder(folder: Path) -> Path:
@@ -44,11 +44,11 @@ class SwarmEvalCallback(BaseCallback):
         n_agents`` of them)
     :param n_eval_episodes: swarm episodes per evaluation
     :param config: env config of the evaluation (default: the training env's, ``model.swarm_config``)
-    :param condition: one of :data:`~sb3_latentswarm.evaluation.CONDITIONS` or
-        :data:`~sb3_latentswarm.evaluation.EXTRA_CONDITIONS`
+    :param condition: a name of :data:`~sb3_latentswarm.evaluation.CONDITION_TABLE`
     :param p_fail: link failure probability (default: the config's)
     :param deterministic: act with the policy's mean action (``False``: sample it)
-    :param seed: episode ``k`` of every evaluation uses env seed ``seed + k`` (the same maps each time)
+    :param seed: episode ``k`` of every evaluation uses env seed ``seed + k`` (the same maps each time); default
+        :data:`~sb3_latentswarm.evaluation.HELD_OUT_SEED`, disjoint from the training env seeds
     :param best_model_save_path: if given, the model is saved there as ``best_model.zip`` whenever the mean coverage
         improves
     :param verbose: 1 prints one line per evaluation
@@ -64,7 +64,7 @@ class SwarmEvalCallback(BaseCallback):
         condition: str = "proposed",
         p_fail: float | None = None,
         deterministic: bool = True,
-        seed: int = 0,
+        seed: int = HELD_OUT_SEED,
         best_model_save_path: str | Path | None = None,
         verbose: int = 0,
     ):
@@ -74,7 +74,8 @@ class SwarmEvalCallback(BaseCallback):
         if config is not None and not isinstance(config, SwarmConfig):
             raise TypeError(f"config must be a SwarmConfig or None, got {type(config).__name__}")
         self.config = config
-        self.condition = check_choice("condition", condition, CONDITIONS + EXTRA_CONDITIONS)
+        check_condition(condition)
+        self.condition = condition
         self.p_fail = None if p_fail is None else check_float("p_fail", p_fail, 0.0, 1.0)
         self.deterministic = check_bool("deterministic", deterministic)
         self.seed = check_int("seed", seed, low=0)

@@ -106,6 +106,10 @@ def command_train(args: argparse.Namespace) -> int:
     validate_algorithm_kwargs(**preset.algo_kwargs)  # before any env is built or file written
     if args.evaluate:
         check_int("eval_episodes", preset.eval_episodes, low=1)
+        # the evaluation episodes must not replay a training env copy's first episode
+        from sb3_latentswarm.evaluation import check_held_out
+
+        check_held_out(_eval_seed(args), preset.eval_episodes, args.seed, preset.n_envs)
     output = Path(args.output or f"runs/{preset.name}")
     output.mkdir(parents=True, exist_ok=True)
     total = args.total_timesteps or preset.total_timesteps
@@ -140,11 +144,13 @@ def _evaluate_and_print(
         evaluate,
         evaluate_conditions,
         evaluate_p_fail_sweep,
+        seed_range,
         summarize,
         to_markdown,
     )
 
-    config, episodes, seed = preset.config, preset.eval_episodes, args.seed
+    config, episodes, seed = preset.config, preset.eval_episodes, _eval_seed(args)
+    seeds = seed_range(seed, episodes)
     progress_bar = sys.stderr.isatty() and not args.no_progress
     policy_kwargs = dict(
         n_episodes=episodes, seed=seed, config=config, deterministic=not args.stochastic, progress_bar=progress_bar
@@ -154,7 +160,7 @@ def _evaluate_and_print(
         from sb3_latentswarm.baselines import FrontierPlanner, LawnmowerPlanner, RandomPlanner
 
         for label, planner in (
-            ("random", RandomPlanner(config, seed=seed)),
+            ("random", RandomPlanner(config, seed=args.seed)),
             ("lawnmower", LawnmowerPlanner(config)),
             ("frontier", FrontierPlanner(config)),
         ):
@@ -169,15 +175,21 @@ def _evaluate_and_print(
     table.to_csv(output / "conditions.csv", index=False)
     summary = summarize(table, by="condition")
     actions = "sampled" if args.stochastic else "mean"
-    _print_table(f"Conditions (p_f = {config.p_fail}, {episodes} episodes each, {actions} actions)", to_markdown(summary))
+    title = f"Conditions (p_f = {config.p_fail}, {episodes} episodes each, episode {seeds}, {actions} actions)"
+    _print_table(title, to_markdown(summary))
     (output / "conditions.md").write_text(to_markdown(summary) + "\n")
     if p_fail_sweep:
         sweep = evaluate_p_fail_sweep(model, p_fails=preset.p_fails, **policy_kwargs)
         sweep.to_csv(output / "p_fail_sweep.csv", index=False)
         sweep_summary = summarize(sweep, by="p_fail")
-        _print_table("p_f sweep (proposed)", to_markdown(sweep_summary))
+        _print_table(f"p_f sweep (proposed, episode {seeds}, {actions} actions)", to_markdown(sweep_summary))
         (output / "p_fail_sweep.md").write_text(to_markdown(sweep_summary) + "\n")
     print(f"\nTables written to {output}/")
+
+
+def _eval_seed(args: argparse.Namespace) -> int:
+    """``--eval-seed``, or the held-out default (:data:`~sb3_latentswarm.evaluation.HELD_OUT_SEED`, 1,000,000)."""
+    return 1_000_000 if args.eval_seed is None else args.eval_seed  # the literal keeps --help free of torch imports
 
 
 def _load_model(args: argparse.Namespace):
@@ -203,6 +215,7 @@ def _evaluation_record(preset: Preset, args: argparse.Namespace) -> dict[str, An
         "config": preset.config.to_dict(),
         "episodes": preset.eval_episodes,
         "seed": args.seed,
+        "eval_seed": _eval_seed(args),
         "actions": "sampled" if args.stochastic else "mean",
         "baselines": not args.no_baselines,
         "sb3_latentswarm": __version__,
@@ -381,6 +394,15 @@ def build_parser() -> argparse.ArgumentParser:
             help="sample the policy's Gaussian actions when evaluating or rendering (default: its mean action)",
         )
 
+    def add_eval_seed(p: argparse.ArgumentParser) -> None:
+        p.add_argument(
+            "--eval-seed",
+            type=int,
+            default=None,
+            help="first evaluation episode seed, episode k uses eval_seed + k (default 1000000: held out from the "
+            "training env seeds, which start at --seed)",
+        )
+
     def add_trust_pickle(p: argparse.ArgumentParser) -> None:
         p.add_argument(
             "--trust-pickle",
@@ -394,6 +416,7 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--total-timesteps", type=positive_int, default=None, help="override the preset's budget (agent-steps)")
     train.add_argument("--output", default=None, help="folder for model.zip and tables (default runs/PRESET)")
     train.add_argument("--evaluate", action="store_true", help="evaluate all conditions and baselines afterwards")
+    add_eval_seed(train)
     train.add_argument("--tensorboard", default=None, help="TensorBoard log folder")
     train.add_argument("--verbose", type=int, default=0)
     train.add_argument(
@@ -409,6 +432,7 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--model", required=True)
     add_trust_pickle(evaluate)
     evaluate.add_argument("--episodes", type=positive_int, default=None, help="episodes per row (default: the preset's)")
+    add_eval_seed(evaluate)
     evaluate.add_argument("--p-fail-sweep", action="store_true", help="also run the p_f sweep of Table I (right)")
     evaluate.add_argument("--no-baselines", action="store_true")
     evaluate.add_argument(

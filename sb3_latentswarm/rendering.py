@@ -21,34 +21,43 @@ _TRAIL_COLOURS = np.array([[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 
 
 
 def _episode(model, config: SwarmConfig, seed: int, condition: str, deterministic: bool, keep_frame):
-    """Play one episode; yield ``(t, frame or None, positions (N, 3), dropout, infos)`` per step, rendering only the
-    frames ``keep_frame(t)`` asks for (the others are ``None``), so no episode's worth of frames is held."""
-    from sb3_latentswarm.envs import SwarmReconEnv
+    """Play one episode on a one-swarm batch (B = 1) of the core that evaluation and training step; yield
+    ``(t, frame or None, positions (N, 3), dropout, infos, last)`` per step, rendering only the frames
+    ``keep_frame(t)`` asks for (the others are ``None``), so no episode's worth of frames is held."""
+    from sb3_latentswarm.envs.batched_core import SwarmBatch
+    from sb3_latentswarm.envs.swarm_recon import render_frame
     from sb3_latentswarm.evaluation import condition_config, policy_switches
+    from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
 
     check_model_fits(model, config)
-    env = SwarmReconEnv(condition_config(config, condition, config.p_fail), render_mode="rgb_array")
-    observations, _ = env.reset(seed=seed)
+    core = SwarmBatch(condition_config(config, condition, config.p_fail), n_swarms=1)
+    core.reset(seeds=[seed])
+    agents = [f"uav_{i}" for i in range(core.n_agents)]
     rng = np.random.default_rng(seed)
     policy = getattr(model, "policy", None)
-    switches = policy_switches(policy, condition) if policy is not None else contextlib.nullcontext()
-    state, infos, t = None, {}, 0
+    switches = policy_switches(policy, condition) if isinstance(policy, LatentSwarmPolicy) else contextlib.nullcontext()
+    state, infos, t, last = None, {}, 0, False
     with switches, th.random.fork_rng():
         th.manual_seed(seed)  # the action noise of deterministic=False
         while True:
-            link_rows = np.stack([obs["link_row"] for obs in observations.values()])
-            dropout = bool(np.any(link_rows.sum(-1) == 0))
-            last = not env.agents
-            yield t, env.render() if (last or keep_frame(t)) else None, env.positions.copy(), dropout, infos, last
+            dropout = bool(np.any(core.link_rows[0].sum(-1) == 0))
+            frame = render_frame(core, 0) if (last or keep_frame(t)) else None
+            yield t, frame, core.positions[0].copy(), dropout, infos, last
             if last:
                 return
             if model is None:
-                shape = env.action_space(env.agents[0]).shape
-                actions = {agent: rng.uniform(-1, 1, shape).astype(np.float32) for agent in env.agents}
+                actions = rng.uniform(-1, 1, (core.n_agents, 4)).astype(np.float32)
             else:
-                actions, state = model.predict(observations, state=state, deterministic=deterministic)
-            observations, _, _, _, infos = env.step(actions)
+                obs = {key: getattr(core, attr)[0].copy() for key, attr in _ACTOR_ARRAYS.items()}
+                actions, state = model.predict(obs, state=state, deterministic=deterministic)
+            _, terminated, truncated = core.step(core.check_actions(np.asarray(actions)[None]))
+            infos = dict(zip(agents, core.step_infos(terminated, truncated)[0]))
+            last = bool(terminated[0] or truncated[0])
             t += 1
+
+
+# actor observation key -> the SwarmBatch array holding it, (B, N, ...)
+_ACTOR_ARRAYS = {"local_obs": "local_obs", "proprio": "proprio", "link_row": "link_rows"}
 
 
 def check_model_fits(model, config: SwarmConfig) -> None:
@@ -79,15 +88,18 @@ def check_model_fits(model, config: SwarmConfig) -> None:
 
 
 def run_episode(model, config: SwarmConfig, seed: int = 0, condition: str = "proposed", deterministic: bool = True):
-    """Play one episode and keep every rendered frame (for short episodes; :func:`render_episode` streams instead).
+    """Play one episode and keep every rendered frame (a one-swarm batch, B = 1, of the core that evaluation and
+    training step; for short episodes: :func:`render_episode` streams instead).
 
     :param model: a ``LatentSwarmPPO``, a planner with ``predict``, or ``None`` for uniformly random actions
-    :param config: the env config; ``condition`` ``"full_comm"`` / ``"no_comm"`` overrides its ``link_mode``
-    :param condition: one of the evaluation conditions (``"proposed"``, ``"full_comm"``, ``"no_comm"``,
-        ``"no_predictor"``, ``"no_memory"``)
+    :param config: the env config; the condition replaces its ``link_mode`` (and keeps its ``p_fail``)
+    :param seed: the episode's env seed (as episode seed ``seed`` of :func:`~sb3_latentswarm.evaluation.evaluate`)
+    :param condition: a name of :data:`~sb3_latentswarm.evaluation.CONDITION_TABLE` (``"proposed"``, ``"full_comm"``,
+        ``"no_comm"``, ``"no_predictor"``, ``"no_memory"``, ...)
     :param deterministic: act with the mean action; ``False`` samples the policy with torch's generator seeded from
         ``seed`` inside ``torch.random.fork_rng`` (the global generator is left as it was)
-    :return: (frames (T+1, H, W, 3) uint8, positions (T+1, N, 3) in metres, dropouts (T+1,) bool, final infos)
+    :return: (frames (T+1, H, W, 3) uint8, positions (T+1, N, 3) in metres, dropouts (T+1,) bool, final infos
+        ``{agent: info}`` as :meth:`~sb3_latentswarm.envs.SwarmReconEnv.step` returns them)
     :raise ValueError: for a model trained on another map or sensor range (:func:`check_model_fits`)
     """
     frames, positions, dropouts, final_infos = [], [], [], {}

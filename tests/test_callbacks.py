@@ -30,7 +30,7 @@ def test_swarm_eval_callback_counts_swarm_episodes_and_agent_steps(tmp_path):
     model.learn(total_timesteps=4 * per_update, callback=callback)
     assert [e["num_timesteps"] for e in callback.evaluations] == [2 * per_update, 4 * per_update]
     # each evaluation is 3 swarm episodes of the training config: the same numbers as evaluate() on them
-    expected = evaluate(model, n_episodes=3, seed=0)
+    expected = evaluate(model, n_episodes=3)  # the default (held-out) seeds of both
     assert callback.evaluations[-1]["coverage"] == pytest.approx(expected["coverage"].mean())
     assert callback.evaluations[-1]["collisions"] == pytest.approx(expected["collisions"].mean())
     progress = pd.read_csv(tmp_path / "progress.csv")
@@ -43,5 +43,5 @@ def test_swarm_eval_callback_counts_swarm_episodes_and_agent_steps(tmp_path):
 def test_swarm_eval_callback_rejects_bad_arguments():
     with pytest.raises(ValueError, match=r"eval_freq \(agent-steps\) must be an int in \[1, inf\)"):
         SwarmEvalCallback(eval_freq=0)
-    with pytest.raises(ValueError, match="condition must be one of"):
+    with pytest.raises(ValueError, match="Unknown condition"):
         SwarmEvalCallback(eval_freq=10, condition="everything")

@@ -294,3 +294,30 @@ def test_long_evaluations_can_show_progress(capsys):
     evaluate(RandomPlanner(SMALL, seed=0), config=SMALL, n_episodes=3, n_envs=2, progress_bar=True)
     err = capsys.readouterr().err
     assert "proposed, p_f=0.3" in err and "3/3" in err
+
+
+# ---------------------------------------------------------------------------------------------- held-out seeds
+def test_default_evaluation_seeds_never_overlap_the_training_seeds(model):
+    import inspect
+
+    from sb3_latentswarm.callbacks import SwarmEvalCallback
+    from sb3_latentswarm.evaluation import HELD_OUT_SEED, check_held_out
+    from sb3_latentswarm.experiments.trial import EVAL_SEED_BASE, training_env_seed
+    from sb3_latentswarm.presets import PRESETS, get_preset
+
+    for function in (evaluate, evaluate_conditions, evaluate_p_fail_sweep, SwarmEvalCallback.__init__):
+        assert inspect.signature(function).parameters["seed"].default == HELD_OUT_SEED, function
+    assert EVAL_SEED_BASE == HELD_OUT_SEED  # the sweep's evaluation seeds
+    assert evaluate(model, n_episodes=2)["seed"].tolist() == [HELD_OUT_SEED, HELD_OUT_SEED + 1]
+    # training env copy c of a run with seed S uses env seed S + c (CLI: S = --seed; sweep: train_seed * n_envs)
+    for name in PRESETS:
+        preset = get_preset(name)
+        for train_seed in range(100):
+            for base in (train_seed, training_env_seed(train_seed, preset.n_envs)):
+                check_held_out(HELD_OUT_SEED, preset.eval_episodes, base, preset.n_envs)  # disjoint: no error
+                assert base + preset.n_envs <= HELD_OUT_SEED
+    with pytest.raises(ValueError, match="overlap the training env copies' seeds"):
+        check_held_out(0, 10, 0, 16)  # the old default: episodes 0..9 replay the first episodes of copies 0..9
+    with pytest.raises(ValueError, match="overlap"):
+        check_held_out(HELD_OUT_SEED, 10, HELD_OUT_SEED - 3, 4)
+    check_held_out(16, 10, 0, 16)  # right after the training seeds: disjoint

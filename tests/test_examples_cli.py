@@ -26,7 +26,8 @@ def test_reproduce_table1_help_describes_every_option():
     result = run_script("examples/reproduce_table1.py", "--help")
     assert result.returncode == 0, result.stderr
     options = result.stdout.split("options:")[1]
-    for name in ("--preset", "--model", "--output", "--episodes", "--stochastic", "--independent-model", "--threads"):
+    names = ("--preset", "--model", "--output", "--episodes", "--actions", "--eval-seed", "--independent-model", "--threads")
+    for name in names:
         assert name in options, name
     assert "default: runs/table1_PRESET" in options and "Monte Carlo runs per condition" in options
 
@@ -39,6 +40,11 @@ def test_reproduce_table1_smoke(tmp_path):
     tmp_path = tmp_path / "runs" / "table1_smoke"
     conditions = pd.read_csv(tmp_path / "conditions.csv")
     assert set(conditions["condition"]) == {"proposed", "full_comm", "no_comm", "no_predictor", "no_memory"}
+    assert conditions["actions"].drop_duplicates().tolist() == ["sampled", "mean"]  # the paper's protocol first
+    assert conditions["seed"].min() == 1_000_000  # held-out episode seeds by default
+    conditions_md = (tmp_path / "conditions.md").read_text()
+    assert conditions_md.index("Sampled actions") < conditions_md.index("Mean actions")
+    assert "episode seeds 1000000-" in conditions_md
     sweep = pd.read_csv(tmp_path / "p_fail_sweep.csv")
     assert sorted(sweep["p_fail"].unique()) == [0.0, 0.05, 0.15, 0.3, 0.5]
     tables = ("conditions.md", "p_fail_sweep.md", "baselines.md", "run.md")
@@ -46,7 +52,7 @@ def test_reproduce_table1_smoke(tmp_path):
         assert (tmp_path / name).stat().st_size > 0, name
     assert "(paper)" in (tmp_path / "conditions.md").read_text()
 
-    # --model evaluates a saved model again; --stochastic samples the policy instead of acting with its mean
+    # --model evaluates a saved model again; --actions sampled evaluates only the paper's protocol
     again = tmp_path / "stochastic"
     result = run_script(
         "examples/reproduce_table1.py",
@@ -54,7 +60,7 @@ def test_reproduce_table1_smoke(tmp_path):
         *(
             "--episodes",
             "2",
-            "--stochastic",
+            *("--actions", "sampled"),
             "--independent-model",
             str(tmp_path / "independent_ppo.zip"),
             "--model-notes",
@@ -63,14 +69,14 @@ def test_reproduce_table1_smoke(tmp_path):
     )
     assert result.returncode == 0, result.stderr
     report = (again / "run.md").read_text()
-    assert "stochastic (sampled) actions" in report and "(the smoke model)" in report
+    assert "actions of the learned policies: sampled," in report and "(the smoke model)" in report
     assert report.startswith("# Table I run: preset `smoke`") and "- machine: " in report
     assert "- command: `python examples/reproduce_table1.py --preset smoke --model " in report
     sampled = pd.read_csv(again / "conditions.csv").query("condition == 'proposed'")
-    mean_action = conditions.query("condition == 'proposed'").head(2)
+    mean_action = conditions.query("condition == 'proposed' and actions == 'mean'").head(2)
     assert len(sampled) == 2
     baselines = pd.read_csv(again / "baselines.csv")
-    assert (baselines["condition"] == "independent RecurrentPPO (768 steps)").sum() == 2  # the saved one, not retrained
+    assert (baselines["condition"] == "independent RecurrentPPO (768 steps, sampled)").sum() == 2  # the saved one
     assert not (again / "independent_ppo.zip").exists()
     assert not np.allclose(sampled["episode_return"].to_numpy(), mean_action["episode_return"].to_numpy())
 
@@ -282,3 +288,16 @@ def test_importing_the_package_applies_the_thread_default_unless_the_environment
     )
     assert result.returncode == 0, result.stderr
     assert int(result.stdout) == expected
+
+
+def test_dropout_diagnostics_smoke(tmp_path):
+    model = ROOT / "docs/results/coordination/trials/proposed-seed0/model.zip"
+    result = run_script(
+        "examples/dropout_diagnostics.py",
+        *("--model", str(model), "--episodes", "2", "--conditions", "proposed", "hold_last", "--output", str(tmp_path)),
+    )
+    assert result.returncode == 0, result.stderr
+    table = pd.read_csv(tmp_path / "dropout_diagnostics.csv")
+    assert table["condition"].tolist() == ["proposed", "hold_last"] and (table["episodes"] == 2).all()
+    assert (tmp_path / "error_by_depth.png").stat().st_size > 0
+    assert "Episode seeds 1000000-1000001, sampled actions" in (tmp_path / "dropout_diagnostics.md").read_text()

@@ -60,16 +60,26 @@ def test_claims_that_fail_are_reported_as_failed():
 
 
 def test_script_writes_claims_beside_the_sweep(tmp_path):
-    synthetic_scores().to_csv(tmp_path / "scores.csv", index=False)
+    synthetic_scores().to_csv(tmp_path / "scores.csv", index=False)  # the sweep's own scores: mean actions
+    # sampled-action scores measured earlier by the script (it would evaluate the sweep's models otherwise)
+    synthetic_scores(proposed=95.0, collisions=20.0).to_csv(tmp_path / "scores_sampled.csv", index=False)
     eval_sets = [{"name": "table1", "overrides": {}, "conditions": None},
                  {"name": "p_fail=0", "overrides": {"p_fail": 0.0}, "conditions": ["proposed"]},
                  {"name": "p_fail=0.5", "overrides": {"p_fail": 0.5}, "conditions": ["proposed"]}]
-    (tmp_path / "sweep.json").write_text(json.dumps({"preset": "smoke", "overrides": {}, "eval_sets": eval_sets}))
+    spec = {"preset": "smoke", "overrides": {}, "eval_sets": eval_sets, "eval_seed": 1_000_000, "eval_episodes": 10,
+            "deterministic": True}
+    (tmp_path / "sweep.json").write_text(json.dumps(spec))
     result = subprocess.run(
         [sys.executable, "examples/paper_claims.py", "--sweep", str(tmp_path), "--burst-cells", "table1=10"],
         cwd=ROOT, capture_output=True, text=True, timeout=120,
     )
     assert result.returncode == 0, result.stderr
     claims = pd.read_csv(tmp_path / "claims.csv")
-    assert len(claims) == 6 and set(claims["met"]) == {"yes", "no"}  # no full_comm_in_range cell here
-    assert "spread 2.00" in (tmp_path / "claims.md").read_text()
+    assert claims["actions"].drop_duplicates().tolist() == ["sampled", "mean"]  # the paper's protocol first
+    mean = claims[claims["actions"] == "mean"]
+    assert len(mean) == 6 and set(mean["met"]) == {"yes", "no"}  # no full_comm_in_range cell here
+    sampled = claims[claims["actions"] == "sampled"].set_index("claim")["met"]
+    assert sampled["5. collisions per episode (Proposed)"] == "no"  # read from scores_sampled.csv: 20 collisions
+    text = (tmp_path / "claims.md").read_text()
+    assert "spread 2.00" in text and text.index("## Sampled actions") < text.index("## Mean actions")
+    assert "episode seeds 1000000-1000009" in text

@@ -279,8 +279,8 @@ def test_full_comm_in_range_condition_in_evaluate() -> None:
     config = SwarmConfig(grid_width=30, grid_height=30, cell_size=2.0, max_steps=60, start_region="uniform")
     assert condition_config(config, "full_comm_in_range", 0.3).link_mode == "full_in_range"
     planner = LawnmowerPlanner(config)
-    in_range = evaluate(planner, "full_comm_in_range", n_episodes=4, config=config)
-    full = evaluate(planner, "full_comm", n_episodes=4, config=config)
+    in_range = evaluate(planner, "full_comm_in_range", n_episodes=4, seed=0, config=config)
+    full = evaluate(planner, "full_comm", n_episodes=4, seed=0, config=config)
     # the lawnmower ignores links, so only the link statistics differ: 60 m arena, 36.4 m range
     np.testing.assert_array_equal(in_range["coverage"], full["coverage"])
     assert (full["link_up_rate"] == 1.0).all() and (in_range["link_up_rate"] < 1.0).all()

@@ -284,6 +284,33 @@ class SwarmBatch:
             "dropout_rate": float(self._n_dropouts[swarm].sum() / (draws * self.n_agents)),
         }
 
+    def step_infos(self, terminated: np.ndarray, truncated: np.ndarray) -> list[list[dict[str, Any]]]:
+        """The info of every agent of every swarm after :meth:`step` (the one place the views' infos are built).
+
+        :param terminated: (B,) bool, as returned by :meth:`step`.
+        :param truncated: (B,) bool, as returned by :meth:`step`.
+        :return: ``infos[b][i]`` for agent ``i`` of swarm ``b``: ``coverage`` (``|C| / |X|``), ``collisions`` (so far),
+            ``link_up_rate`` (the agent's mean share of live in-links so far), ``dropout`` (N_t^i empty at the last
+            link draw); in a finished swarm also ``swarm_summary`` (:meth:`swarm_summary` plus ``truncated``), one
+            copy per agent.
+        """
+        n = self.n_agents
+        coverage, collisions = self.coverage.tolist(), self.collisions.tolist()
+        rates, dropped = self.link_up_rates().tolist(), self.dropout.tolist()
+        infos = [
+            [
+                {"coverage": coverage[b], "collisions": collisions[b], "link_up_rate": rates[b][i], "dropout": dropped[b][i]}
+                for i in range(n)
+            ]
+            for b in range(self.n_swarms)
+        ]
+        for swarm in np.flatnonzero(np.asarray(terminated) | np.asarray(truncated)).tolist():
+            summary = self.swarm_summary(swarm)
+            summary["truncated"] = bool(truncated[swarm])
+            for info in infos[swarm]:
+                info["swarm_summary"] = dict(summary)
+        return infos
+
     def link_up_rates(self) -> np.ndarray:
         """Mean share of live in-links of every agent over the episode's link draws so far, (B, N)."""
         return self._in_link_sum * (self._inv_peers / np.maximum(self._n_link_draws, 1))[:, None]

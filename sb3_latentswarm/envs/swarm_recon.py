@@ -216,20 +216,10 @@ class SwarmReconEnv(ParallelEnv):
             raise RuntimeError("step() called without a running episode: call reset() first (the episode has ended)")
         core = self._core
         reward, terminated, truncated = core.step(core.check_actions(self._stack_actions(actions)[None]))
+        infos = dict(zip(self.possible_agents, core.step_infos(terminated, truncated)[0]))
         reward, terminated, truncated = float(reward[0]), bool(terminated[0]), bool(truncated[0])
         obs = self._observations()
-        coverage, collisions = self.coverage, int(core.collisions[0])
-        rates = core.link_up_rates()[0].tolist()  # mean share of up in-links
-        dropped = core.dropout[0].tolist()
-        infos = {
-            agent: {"coverage": coverage, "collisions": collisions, "link_up_rate": rates[i], "dropout": dropped[i]}
-            for i, agent in enumerate(self.possible_agents)
-        }
         if terminated or truncated:
-            summary = self.swarm_summary()
-            summary["truncated"] = truncated
-            for info in infos.values():
-                info["swarm_summary"] = dict(summary)
             self.agents = []
         return (
             obs,

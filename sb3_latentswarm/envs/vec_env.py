@@ -299,21 +299,13 @@ class BatchedSwarmVecEnv(_SwarmSeeding, VecEnv):
         reward, terminated, truncated = core.step(actions.reshape(self.n_swarms, n, 4))
         observations = self._observations()
         done = terminated | truncated
-        coverage, collisions = core.coverage.tolist(), core.collisions.tolist()
-        rates, dropped = core.link_up_rates().ravel().tolist(), core.dropout.ravel().tolist()
-        infos = [
-            {"coverage": coverage[k // n], "collisions": collisions[k // n], "link_up_rate": rates[k], "dropout": dropped[k]}
-            for k in range(self.num_envs)
-        ]
+        infos = [info for swarm_infos in core.step_infos(terminated, truncated) for info in swarm_infos]
         if done.any():
             finished = np.flatnonzero(done)
             for swarm in finished.tolist():
-                summary = core.swarm_summary(swarm)
-                summary["truncated"] = was_truncated = bool(truncated[swarm])
                 for k in range(swarm * n, (swarm + 1) * n):
-                    infos[k]["swarm_summary"] = dict(summary)
                     infos[k]["terminal_observation"] = {key: observations[key][k] for key in OBS_KEYS}
-                    infos[k]["TimeLimit.truncated"] = was_truncated
+                    infos[k]["TimeLimit.truncated"] = bool(truncated[swarm])
             core.reset(finished)  # their RNGs continue
             observations = self._observations()
         return observations, np.repeat(reward.astype(np.float32), n), np.repeat(done, n), infos

@@ -35,7 +35,7 @@ during dropout (so that its policy learns to read that substitute: the fair "no 
 RecurrentPPO."""
 TRAINING_SUBSTITUTES = {"zero_substitute": "zero", "hold_last": "hold_last"}
 """``LatentSwarmPolicy.message_substitute`` of the variants trained with another substitute than the predictor."""
-EVAL_SEED_BASE = 1_000_000
+EVAL_SEED_BASE = evaluation.HELD_OUT_SEED
 """First env seed of the evaluation episodes (training env seeds stay below it)."""
 SCORE_METRICS = ("coverage", "collisions", "steps_to_90", "reached_90")
 """Per-run scores of an evaluation cell: means over its episodes (``steps_to_90`` over the episodes that reached 90 %
@@ -98,7 +98,7 @@ def conditions_for(variant: str, conditions: Sequence[str]) -> list[str]:
     off, so it runs only the conditions that change the links alone."""
     if variant != "independent":
         return list(conditions)
-    return [c for c in conditions if not any(evaluation._SWITCHES[c])]
+    return [c for c in conditions if not evaluation.CONDITION_TABLE[c].switches_policy]
 
 
 def variant_algo_kwargs(variant: str, algo_kwargs: dict[str, Any]) -> dict[str, Any]:

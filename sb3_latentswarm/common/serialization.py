@@ -48,7 +48,8 @@ RUN_STATE = ("_last_obs", "_last_episode_starts", "_last_original_obs", "_last_l
 """Attributes of a run in progress, or derived from saved ones: rebuilt on load, never saved."""
 
 MACHINE_SPECIFIC = ("tensorboard_log",)
-"""Paths of the machine that saved the model: saved as ``None`` (pass ``tensorboard_log=...`` to ``load``)."""
+"""Paths that may name the machine that saved the model: kept when relative (``runs/tb``: a loaded model continues
+logging there, as SB3's does), saved as ``None`` when absolute (pass ``tensorboard_log=...`` to ``load``)."""
 
 NOT_CONSTRUCTOR_ARGUMENTS = ("self", "policy", "env", "device", "_init_setup_model")
 
@@ -263,7 +264,8 @@ def read_data(path: str | pathlib.Path | io.BufferedIOBase) -> tuple[dict[str, A
 def save_plain(model: Any, path: str | pathlib.Path | io.BufferedIOBase, exclude=None, include=None) -> None:
     """Save ``model`` (an SB3 algorithm) in SB3's zip layout with a plain-data ``data`` entry.
 
-    What SB3's ``save`` would store, less :data:`RUN_STATE`; :data:`MACHINE_SPECIFIC` attributes are stored as ``None``.
+    What SB3's ``save`` would store, less :data:`RUN_STATE`; :data:`MACHINE_SPECIFIC` attributes are stored as ``None``
+    when they are absolute paths.
     A schedule given as a plain function cannot be stored: it is saved as its current value, with a warning.
     """
     algorithm = type(model)
@@ -276,7 +278,7 @@ def save_plain(model: Any, path: str | pathlib.Path | io.BufferedIOBase, exclude
         if name in excluded:
             continue
         if name in MACHINE_SPECIFIC:
-            value = None
+            value = None if value is None or pathlib.Path(value).is_absolute() else str(value)
         elif callable(value) and not isinstance(value, type) and _schedule_to_plain(value) is None:
             current = float(value(model._current_progress_remaining))
             warnings.warn(

@@ -27,11 +27,13 @@ rebuilds the model with its env; :class:`StopOnSignal` turns SIGINT / SIGTERM in
 
 from __future__ import annotations
 
+import csv
 import io
 import json
 import random
 import re
 import signal
+import sys
 import threading
 import zipfile
 from collections.abc import Callable
@@ -41,9 +43,10 @@ from typing import Any
 import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import CSVOutputFormat, HumanOutputFormat, Logger, TensorBoardOutputFormat
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
-from sb3_latentswarm.common.atomic import write_bytes
+from sb3_latentswarm.common.atomic import write_bytes, write_text
 from sb3_latentswarm.common.checks import check_int
 from sb3_latentswarm.common.type_aliases import LatentState
 
@@ -52,8 +55,12 @@ __all__ = [
     "CheckpointError",
     "StopOnSignal",
     "SwarmCheckpointCallback",
+    "ResumableCSVOutputFormat",
+    "ResumableTensorBoardOutputFormat",
     "checkpoint_bytes",
+    "configure_run_logger",
     "default_save_freq",
+    "estimate_checkpoint_bytes",
     "latest_checkpoint",
     "list_checkpoints",
     "load_checkpoint",
@@ -213,6 +220,7 @@ def checkpoint_bytes(model: Any, settings: dict[str, Any] | None = None, extra: 
         "env": env_plain,
         "swarm_summaries": list(model._swarm_summaries),
         "tensorboard_log": model.tensorboard_log,
+        "pending_log": _pending_log(model),
         "settings": settings or {},
         "extra": extra or {},
     }
@@ -225,6 +233,17 @@ def checkpoint_bytes(model: Any, settings: dict[str, Any] | None = None, extra: 
         archive.writestr("arrays.npz", npz.getvalue())
         archive.writestr("tensors.pth", pth.getvalue())
     return out.getvalue()
+
+
+def _pending_log(model: Any) -> dict[str, Any]:
+    """The values recorded since the last dump (the ``train/`` keys of the last update), kept so that the resumed
+    run's first dump has them too."""
+    logger = getattr(model, "_logger", None)
+    if logger is None:
+        return {}
+    values = {k: float(v) for k, v in logger.name_to_value.items() if isinstance(v, (int, float, np.number))}
+    excluded = {k: list(v) if v else None for k, v in logger.name_to_excluded.items() if k in values}
+    return {"values": values, "excluded": excluded}
 
 
 def _plain_default(value: Any) -> Any:
@@ -285,6 +304,7 @@ def restore_run_state(model: Any, path: str | Path) -> bool:
         model.env.seed(base + int(state["num_timesteps"]))
         model._last_obs = None
     model._swarm_summaries.extend(state["swarm_summaries"])
+    model._pending_log_values = state.get("pending_log") or {}  # recorded again by SwarmCheckpointCallback
     _set_rng_states(state["rng"], arrays, tensors)
     return restored
 
@@ -308,6 +328,69 @@ def load_checkpoint(path: str | Path, env: VecEnv, device: th.device | str = "au
     model = LatentSwarmPPO.load(model_file, env=env, device=device, **kwargs)
     restore_run_state(model, path)
     return model
+
+
+# ---------------------------------------------------------------------------------------------- logging
+class ResumableCSVOutputFormat(CSVOutputFormat):
+    """SB3's ``progress.csv`` writer that continues an existing file.
+
+    :param resume_step: ``None``: start a new file; else keep the rows up to this ``time/total_timesteps`` (those
+        logged after the checkpoint are dropped: the resumed run logs them again) and append
+    """
+
+    def __init__(self, filename: str | Path, resume_step: int | None = None):
+        path = Path(filename)
+        if resume_step is None or not path.exists() or path.stat().st_size == 0:
+            super().__init__(str(path))
+            return
+        lines = path.read_text().splitlines(keepends=True)
+        header = next(csv.reader(lines[:1]))
+        column = header.index("time/total_timesteps") if "time/total_timesteps" in header else None
+        kept = [lines[0]]
+        for line, row in zip(lines[1:], csv.reader(lines[1:])):
+            if column is None or (column < len(row) and row[column] and float(row[column]) <= resume_step):
+                kept.append(line)
+        write_text(path, "".join(kept))
+        self.file = open(path, "r+")  # noqa: SIM115 - SB3's writer keeps the file open
+        self.file.seek(0, 2)
+        self.keys = header
+        self.separator = ","
+        self.quotechar = '"'
+
+
+class ResumableTensorBoardOutputFormat(TensorBoardOutputFormat):
+    """SB3's TensorBoard writer with ``purge_step``: a resumed run hides the events the stopped run logged after its
+    checkpoint, so the curve continues without a doubled stretch."""
+
+    def __init__(self, folder: str | Path, purge_step: int | None = None):
+        from torch.utils.tensorboard import SummaryWriter
+
+        self.writer = SummaryWriter(log_dir=str(folder), purge_step=purge_step)
+        self._is_closed = False
+
+
+def configure_run_logger(
+    folder: str | Path, verbose: int = 0, tensorboard_run: str | Path | None = None, resume_step: int | None = None
+) -> Logger:
+    """An SB3 logger writing ``folder/progress.csv`` (and stdout when ``verbose``, TensorBoard into the exact run
+    folder ``tensorboard_run``), continuing both after the checkpoint at ``resume_step`` agent-steps."""
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    formats: list[Any] = [ResumableCSVOutputFormat(Path(folder) / "progress.csv", resume_step)]
+    if verbose >= 1:
+        formats.append(HumanOutputFormat(sys.stdout))
+    if tensorboard_run is not None:
+        purge = None if resume_step is None else resume_step + 1
+        formats.append(ResumableTensorBoardOutputFormat(tensorboard_run, purge))
+    return Logger(folder=str(folder), output_formats=formats)
+
+
+def estimate_checkpoint_bytes(model: Any) -> int:
+    """An upper estimate of a checkpoint's size (what ``train`` checks the output folder has room for)."""
+    model_file = io.BytesIO()
+    model.save(model_file)
+    per_slot = sum(int(np.prod(space.shape)) * space.dtype.itemsize for space in model.observation_space.spaces.values())
+    latent = sum(model.policy.latent_dims)
+    return len(model_file.getvalue()) + 3 * per_slot * model.n_envs + 8 * latent * model.n_envs + (1 << 20)
 
 
 # ---------------------------------------------------------------------------------------------- files
@@ -415,6 +498,11 @@ class SwarmCheckpointCallback(BaseCallback):
         self._next_save = 0
 
     def _init_callback(self) -> None:
+        pending = getattr(self.model, "_pending_log_values", None) or {}
+        for key, value in pending.get("values", {}).items():
+            excluded = pending.get("excluded", {}).get(key)
+            self.logger.record(key, value, exclude=tuple(excluded) if excluded else None)
+        self.model._pending_log_values = {}
         self._next_save = self._following(self.num_timesteps)
         latest = latest_checkpoint(self.save_path)
         self._written_at = int(_NAME.match(latest.name).group(1)) if latest else None  # type: ignore[union-attr]

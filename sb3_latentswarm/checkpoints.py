@@ -55,6 +55,7 @@ __all__ = [
     "CheckpointError",
     "StopOnSignal",
     "SwarmCheckpointCallback",
+    "TrainingInterrupted",
     "ResumableCSVOutputFormat",
     "ResumableTensorBoardOutputFormat",
     "checkpoint_bytes",
@@ -304,6 +305,9 @@ def restore_run_state(model: Any, path: str | Path) -> bool:
         model.env.seed(base + int(state["num_timesteps"]))
         model._last_obs = None
     model._swarm_summaries.extend(state["swarm_summaries"])
+    if model.ep_info_buffer:  # VecMonitor's types (the model file keeps Python numbers): logged means match exactly
+        for info in model.ep_info_buffer:
+            info["r"], info["l"] = np.float32(info["r"]), np.int32(info["l"])
     model._pending_log_values = state.get("pending_log") or {}  # recorded again by SwarmCheckpointCallback
     _set_rng_states(state["rng"], arrays, tensors)
     return restored
@@ -407,6 +411,21 @@ def latest_checkpoint(folder: str | Path) -> Path | None:
     """The newest checkpoint in ``folder``, or ``None``."""
     found = list_checkpoints(folder)
     return found[-1] if found else None
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Training was stopped by a signal after writing a checkpoint (raised by callers that cannot return a status,
+    e.g. a sweep trial). A ``KeyboardInterrupt``, so code that handles Ctrl-C handles it too.
+
+    :param signum: the signal's number
+    :param checkpoint: the checkpoint written, from which a rerun continues
+    """
+
+    def __init__(self, signum: int | None, checkpoint: Path | None):
+        self.signum = signum
+        self.checkpoint = checkpoint
+        name = signal.Signals(signum).name if signum else "a signal"
+        super().__init__(f"training stopped by {name}; checkpoint {checkpoint}")
 
 
 class StopOnSignal:

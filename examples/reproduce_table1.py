@@ -9,6 +9,9 @@ map sharing, independent RecurrentPPO without messages), and writes into ``--out
   ``baselines.csv`` / ``.md``
 * ``coverage_vs_time.png`` (mean coverage against time per condition) and ``coverage_vs_p_fail.png``
 * ``run.md``: command, commit, machine, wall times, seeds
+* ``evaluation.json``: what the tables were made from (the model file's SHA-256, config, episodes, env seeds,
+  actions, p_f values) and which are complete; each table is written, atomically, as soon as it is complete. A folder
+  holding another model's tables is refused
 
     python examples/reproduce_table1.py --preset smoke            # seconds, checks the pipeline
     python examples/reproduce_table1.py --preset fast             # ~45 min on a 2-core CPU
@@ -19,6 +22,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
+import json
 import sys
 import time
 from dataclasses import dataclass, field
@@ -36,6 +41,7 @@ from sb3_latentswarm.baselines import (
     RandomPlanner,
     train_independent_ppo,
 )
+from sb3_latentswarm.common.atomic import atomic_path, probe_writable, write_json, write_text
 from sb3_latentswarm.common.run_record import git_commit, write_run_record
 from sb3_latentswarm.envs import make_vec_env
 from sb3_latentswarm.evaluation import (
@@ -109,7 +115,8 @@ def plot_curves(curves: dict, labels: dict, path: Path, title: str) -> None:
     ax.set_title(title)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
 
 
@@ -127,8 +134,46 @@ def plot_p_fail(sweep: pd.DataFrame, paper: pd.DataFrame, path: Path) -> None:
     ax.set_ylabel("final coverage (%)")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
+
+
+def write_table(output: Path, name: str, frame: pd.DataFrame, markdown: str, record: dict) -> None:
+    """Write ``NAME.csv`` and ``NAME.md`` atomically as soon as the table is complete, and record it."""
+    with atomic_path(output / f"{name}.csv") as tmp:
+        frame.to_csv(tmp, index=False)
+    write_text(output / f"{name}.md", markdown + "\n")
+    record["tables"].append(name)
+    write_json(output / RECORD, record)
+
+
+RECORD = "evaluation.json"
+"""What the tables in the output folder were made from (model file hash, config, episodes, seeds, actions)."""
+TABLES = ("conditions", "p_fail_sweep", "baselines")
+
+
+def check_output(output: Path, record: dict | None) -> None:
+    """Refuse an output folder holding the tables of another model or evaluation (``record``: this one's identity;
+    ``None`` before a model is trained, when any earlier table is another model's)."""
+    present = [name for name in TABLES if (output / f"{name}.csv").exists()]
+    if not present:
+        return
+    recorded = json.loads((output / RECORD).read_text()) if (output / RECORD).exists() else None
+    keys = ("model_sha256", "config", "episodes", "env_seeds", "actions", "p_fails")
+    if record is None:
+        reason = "a model trained now would not be the one they were made from"
+    elif recorded is None:
+        reason = f"they have no {RECORD}"
+    else:
+        differ = [key for key in keys if recorded.get(key) != record.get(key)]
+        if not differ:
+            return
+        reason = f"they were made with another {', '.join(differ)}"
+    raise SystemExit(
+        f"reproduce_table1.py: {output} holds the tables of another run ({', '.join(present)}; {reason}); pass another "
+        f"--output"
+    )
 
 
 def main() -> None:
@@ -140,7 +185,9 @@ def main() -> None:
         preset = dataclasses.replace(preset, eval_episodes=args.episodes)
     config, episodes, seed = preset.config, preset.eval_episodes, args.seed
     output = Path(args.output or f"runs/table1_{preset.name}")
-    output.mkdir(parents=True, exist_ok=True)
+    if not args.model:
+        check_output(output, None)  # before hours of training
+    probe_writable(output, room_bytes=1 << 20)
     timings: dict[str, float] = {}
     deterministic = not args.stochastic  # for the learned policies; the planners have their own rules
     commit = git_commit()  # the code that runs, before anything is written
@@ -153,9 +200,23 @@ def main() -> None:
         env = make_vec_env(preset.n_envs, config=config, seed=seed)
         model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=seed, device=args.device, **preset.algo_kwargs)
         model.learn(total_timesteps=preset.total_timesteps, progress_bar=sys.stdout.isatty())
-        model.save(output / "model.zip")
+        model.save(output / "model.zip")  # atomic: a failed save leaves no partial file
         trained = f"trained here for {preset.total_timesteps:,} agent-steps ({preset.updates} updates), seed {seed}"
     timings["LatentSwarmPPO loading" if args.model else "LatentSwarmPPO training"] = time.perf_counter() - start
+
+    record = {
+        "model": str(args.model or output / "model.zip"),
+        "model_sha256": hashlib.sha256(Path(args.model or output / "model.zip").read_bytes()).hexdigest(),
+        "preset": preset.name,
+        "config": config.to_dict(),
+        "episodes": episodes,
+        "env_seeds": [seed, seed + episodes - 1],
+        "actions": "mean" if deterministic else "sampled",
+        "p_fails": list(preset.p_fails),
+        "tables": [],
+    }
+    check_output(output, record)
+    write_json(output / RECORD, record)
 
     # Table I, left: the five conditions
     start = time.perf_counter()
@@ -168,18 +229,16 @@ def main() -> None:
         return_curves=True,
         deterministic=deterministic,
     )
-    conditions.to_csv(output / "conditions.csv", index=False)
     condition_summary = summarize(conditions, by="condition")
-    (output / "conditions.md").write_text(to_markdown(side_by_side(condition_summary)) + "\n")
+    write_table(output, "conditions", conditions, to_markdown(side_by_side(condition_summary)), record)
     plot_curves(condition_curves, CONDITION_LABELS, output / "coverage_vs_time.png", f"Coverage against time ({preset.name})")
 
     # Table I, right: the p_f sweep
     sweep = evaluate_p_fail_sweep(
         model, p_fails=preset.p_fails, n_episodes=episodes, seed=seed, config=config, deterministic=deterministic
     )
-    sweep.to_csv(output / "p_fail_sweep.csv", index=False)
     sweep_summary = summarize(sweep, by="p_fail")
-    (output / "p_fail_sweep.md").write_text(to_markdown(side_by_side(sweep_summary)) + "\n")
+    write_table(output, "p_fail_sweep", sweep, to_markdown(side_by_side(sweep_summary)), record)
     plot_p_fail(sweep, PAPER_TABLE1_P_FAIL, output / "coverage_vs_p_fail.png")
     timings["evaluation of conditions and p_f sweep"] = time.perf_counter() - start
 
@@ -207,9 +266,8 @@ def main() -> None:
         rows.append(frame.assign(condition=f"independent RecurrentPPO ({steps:,} steps)"))
     rows.append(conditions[conditions["condition"] == "proposed"].assign(condition="LatentSwarmPPO (proposed)"))
     baselines = pd.concat(rows, ignore_index=True)
-    baselines.to_csv(output / "baselines.csv", index=False)
     baseline_summary = summarize(baselines, by="condition")
-    (output / "baselines.md").write_text(to_markdown(baseline_summary) + "\n")
+    write_table(output, "baselines", baselines, to_markdown(baseline_summary), record)
     timings["baselines"] = time.perf_counter() - start
 
     actions = "stochastic (sampled)" if args.stochastic else "deterministic (mean)"

@@ -3,9 +3,9 @@
 A checkpoint is one zip file, ``checkpoint_<num_timesteps>_steps.zip`` (SB3's ``rl_model_<n>_steps.zip`` naming),
 of plain data only (no pickle, see ``docs/security.md``):
 
-* ``model.zip``: the model as :meth:`LatentSwarmPPO.save <sb3_latentswarm.LatentSwarmPPO.save>` writes it: weights,
-  optimizer state, ValueNorm statistics (policy buffers), ``num_timesteps``, ``_n_updates``, the schedule progress
-  ``_current_progress_remaining`` and ``_total_timesteps``, the episode-statistics window ``ep_info_buffer``;
+* ``model.zip``: the model as :meth:`LatentSwarmPPO.save <sb3_latentswarm.latent_ppo.LatentSwarmPPO.save>` writes it:
+  weights, optimizer state, ValueNorm statistics (policy buffers), ``num_timesteps``, ``_n_updates``, the schedule
+  progress ``_current_progress_remaining`` and ``_total_timesteps``, the episode-statistics window ``ep_info_buffer``;
 * ``state.json``: the Python and NumPy RNG states (NumPy's global stream shuffles the rollout buffer), the last
   swarm summaries, the vec env's plain state (VecMonitor counters, per-swarm ``numpy.random.Generator`` states of the
   batched core, its pending seed), the caller's run settings (what ``train --resume`` compares) and ``extra`` (plain
@@ -21,8 +21,9 @@ stopped (``tests/test_checkpoints.py``). With the SuperSuit backend the env copi
 starts new episodes (env seed ``seed + num_timesteps``), and is a continuation, not a replay.
 
 :class:`SwarmCheckpointCallback` writes them every ``save_freq`` agent-steps (atomically, keeping the last ``keep``);
-:func:`load_checkpoint` (also :meth:`LatentSwarmPPO.load_checkpoint <sb3_latentswarm.LatentSwarmPPO.load_checkpoint>`)
-rebuilds the model with its env; :class:`StopOnSignal` turns SIGINT / SIGTERM into a clean stop at the next step.
+:func:`load_checkpoint` (also
+:meth:`LatentSwarmPPO.load_checkpoint <sb3_latentswarm.latent_ppo.LatentSwarmPPO.load_checkpoint>`) rebuilds the model
+with its env; :class:`StopOnSignal` turns SIGINT / SIGTERM into a clean stop at the next step.
 """
 
 from __future__ import annotations
@@ -195,7 +196,7 @@ def _set_env_state(env: VecEnv, plain: dict[str, Any], arrays: dict[str, np.ndar
 
 
 def checkpoint_bytes(model: Any, settings: dict[str, Any] | None = None, extra: dict[str, Any] | None = None) -> bytes:
-    """The checkpoint of ``model`` (a :class:`~sb3_latentswarm.LatentSwarmPPO` between two updates) as zip bytes.
+    """The checkpoint of ``model`` (a :class:`~sb3_latentswarm.latent_ppo.LatentSwarmPPO` between two updates) as zip bytes.
 
     :param settings: plain data describing the run (compared by ``train --resume``)
     :param extra: plain data the caller keeps with the run
@@ -314,7 +315,7 @@ def restore_run_state(model: Any, path: str | Path) -> bool:
 
 
 def load_checkpoint(path: str | Path, env: VecEnv, device: th.device | str = "auto", **kwargs: Any) -> Any:
-    """Rebuild the :class:`~sb3_latentswarm.LatentSwarmPPO` of checkpoint ``path`` on ``env``, ready to continue.
+    """Rebuild the :class:`~sb3_latentswarm.latent_ppo.LatentSwarmPPO` of checkpoint ``path`` on ``env``, ready to continue.
 
     Continue with ``model.learn(total - model.num_timesteps, reset_num_timesteps=False)`` (SB3's convention: the
     remaining agent-steps), which keeps the schedule progress and continues TensorBoard in the same run folder.

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import csv
+import hashlib
+import io
 import json
 import os
 import resource
@@ -47,7 +49,8 @@ def smoke_model(seed: int = 3, **kwargs) -> LatentSwarmPPO:
 def assert_same_training_state(a: LatentSwarmPPO, b: LatentSwarmPPO) -> None:
     for key, value in a.policy.state_dict().items():
         assert th.equal(value, b.policy.state_dict()[key]), key
-    for group_a, group_b in zip(a.policy.optimizer.state_dict()["state"].values(), b.policy.optimizer.state_dict()["state"].values()):
+    states_a, states_b = a.policy.optimizer.state_dict()["state"], b.policy.optimizer.state_dict()["state"]
+    for group_a, group_b in zip(states_a.values(), states_b.values()):
         for name in group_a:
             assert th.equal(group_a[name], group_b[name]), name
     assert (a.num_timesteps, a._n_updates, a._current_progress_remaining) == (
@@ -97,7 +100,7 @@ def test_resume_from_a_checkpoint_equals_the_uninterrupted_run(tmp_path):
     # a checkpoint is plain data: the model entry has no pickle, arrays and tensors are read without unpickling
     with zipfile.ZipFile(checkpoint) as archive:
         assert sorted(archive.namelist()) == ["arrays.npz", "model.zip", "state.json", "tensors.pth"]
-        assert read_data(__import__("io").BytesIO(archive.read("model.zip")))[1] == []
+        assert read_data(io.BytesIO(archive.read("model.zip")))[1] == []
     assert read_checkpoint_state(checkpoint)["num_timesteps"] == 2 * PER_UPDATE
 
 
@@ -212,9 +215,8 @@ def test_cli_resume_refuses_other_settings_and_a_run_folder_is_not_reused(tmp_pa
 def test_cli_unwritable_or_full_output_fails_before_training(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("a regular file")
-    result = subprocess.run(
-        cli("train", "--preset", "smoke", "--output", str(blocker / "run")), env=subprocess_env(), capture_output=True, text=True
-    )
+    command = cli("train", "--preset", "smoke", "--output", str(blocker / "run"))
+    result = subprocess.run(command, env=subprocess_env(), capture_output=True, text=True)
     assert result.returncode == 2 and "not writable" in result.stderr and "Training preset" not in result.stdout
 
     # a size limit below one checkpoint (a full disk, as the process sees it): refused before training, and the good
@@ -246,7 +248,7 @@ def test_cli_evaluations_record_the_model_hash_and_never_mix(tmp_path, capsys, m
     tables = tmp_path / "tables"
     assert main([*evaluate, "--model", str(first / "model.zip"), "--output", str(tables), "--p-fail-sweep"]) == 0
     record = json.loads((tables / "evaluation.json").read_text())
-    assert record["model_sha256"] == __import__("hashlib").sha256((first / "model.zip").read_bytes()).hexdigest()
+    assert record["model_sha256"] == hashlib.sha256((first / "model.zip").read_bytes()).hexdigest()
     assert set(record["tables"]) == {"conditions", "p_fail_sweep"} and record["env_seeds"] == [0, 0]
     assert record["tables"]["p_fail_sweep"]["p_fails"] == list(SMOKE.p_fails)
     before = {p.name: p.read_bytes() for p in tables.iterdir()}

@@ -197,7 +197,12 @@ def command_train(args: argparse.Namespace) -> int:
     total = settings["total_timesteps"] or preset.total_timesteps
     settings["total_timesteps"] = total
     per_update = preset.algo_kwargs["n_steps"] * preset.n_envs * preset.config.n_agents
-    save_freq = default_save_freq(total, per_update) if args.save_freq is None else args.save_freq
+    stored = state.get("settings") or {}
+    if args.save_freq is None:  # the run's own frequency on --resume (not compared: it changes no result)
+        args.save_freq = stored.get("save_freq", default_save_freq(total, per_update))
+    if args.keep_checkpoints is None:
+        args.keep_checkpoints = stored.get("keep_checkpoints", 3)
+    save_freq = args.save_freq
 
     # every setting is checked here, by building the env and the model, before any folder is created
     env = make_vec_env(preset.n_envs, config=preset.config, seed=args.seed, backend=args.backend)
@@ -225,7 +230,13 @@ def command_train(args: argparse.Namespace) -> int:
     probe_writable(output, room_bytes=room)
     if tensorboard_run is not None:
         probe_writable(tensorboard_run)
-    run_settings = {**settings, "tensorboard": tensorboard, "tensorboard_run": tensorboard_run}
+    run_settings = {
+        **settings,
+        "tensorboard": tensorboard,
+        "tensorboard_run": tensorboard_run,
+        "save_freq": save_freq,
+        "keep_checkpoints": args.keep_checkpoints,
+    }
 
     resume_step = int(state["num_timesteps"]) if state else None
     model.set_logger(configure_run_logger(output, args.verbose, tensorboard_run, resume_step))
@@ -622,10 +633,15 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="AGENT_STEPS",
         help="agent-steps between checkpoints in OUTPUT/checkpoints/ (default: about 5 %% of the budget, in whole "
-        "updates; 0: only at the end and when stopped). A checkpoint is also written on SIGINT / SIGTERM",
+        "updates; with --resume, the run's; 0: only at the end and when stopped). A checkpoint is also written on "
+        "SIGINT / SIGTERM",
     )
     train.add_argument(
-        "--keep-checkpoints", type=positive_int, default=3, metavar="K", help="keep the newest K checkpoints (default 3)"
+        "--keep-checkpoints",
+        type=positive_int,
+        default=None,
+        metavar="K",
+        help="keep the newest K checkpoints (default 3; with --resume, the run's)",
     )
     train.add_argument(
         "--resume",
@@ -718,6 +734,9 @@ def main(argv: list[str] | None = None) -> int:
         return args.func(args)
     except (ValueError, TypeError) as error:
         parser.exit(2, f"sb3-latentswarm {args.command}: error: {error}\n")
+    except KeyboardInterrupt:  # Ctrl-C outside training: the files finished so far are complete (atomic writes)
+        print(f"\nsb3-latentswarm {args.command}: interrupted; the files it finished are kept", file=sys.stderr)
+        return 130
     return 1
 
 

@@ -171,7 +171,7 @@ def test_cli_stopped_mid_training_resumes_to_the_uninterrupted_model(tmp_path, s
     output = tmp_path / "run"
     command = ["train", "--preset", "smoke", "--total-timesteps", str(CLI_UPDATES * PER_UPDATE), "--output", str(output)]
     process = subprocess.Popen(
-        cli(*command, "--save-freq", str(PER_UPDATE), "--no-progress"),
+        cli(*command, "--save-freq", str(PER_UPDATE), "--no-progress", "--tensorboard", str(output / "tb")),
         env=subprocess_env(),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -192,8 +192,16 @@ def test_cli_stopped_mid_training_resumes_to_the_uninterrupted_model(tmp_path, s
     for key, value in reference.items():
         assert th.equal(value, resumed[key]), key
     # the learning curve continues in the same progress.csv: every update once, in order
+    every_update = [k * PER_UPDATE for k in range(1, CLI_UPDATES + 1)]
     steps = [int(row["time/total_timesteps"]) for row in csv.DictReader((output / "progress.csv").open())]
-    assert steps == [k * PER_UPDATE for k in range(1, CLI_UPDATES + 1)]
+    assert steps == every_update
+    # and in the same TensorBoard run folder, where the events logged after the checkpoint are purged
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    (run,) = (output / "tb").iterdir()
+    events = EventAccumulator(str(run))
+    events.Reload()
+    assert [event.step for event in events.Scalars("rollout/coverage")] == every_update
 
 
 def test_cli_resume_refuses_other_settings_and_a_run_folder_is_not_reused(tmp_path, capsys):
@@ -278,8 +286,7 @@ def test_cli_evaluations_record_the_model_hash_and_never_mix(tmp_path, capsys, m
 
     monkeypatch.setattr(evaluation, "evaluate_p_fail_sweep", interrupted)
     partial = tmp_path / "partial"
-    with pytest.raises(KeyboardInterrupt):
-        main([*evaluate, "--model", str(second / "model.zip"), "--output", str(partial), "--p-fail-sweep"])
+    assert main([*evaluate, "--model", str(second / "model.zip"), "--output", str(partial), "--p-fail-sweep"]) == 130
     assert (partial / "conditions.csv").exists() and not (partial / "p_fail_sweep.csv").exists()
     assert set(json.loads((partial / "evaluation.json").read_text())["tables"]) == {"conditions"}
 

@@ -191,6 +191,11 @@ def command_train(args: argparse.Namespace) -> int:
             f"--output {output} holds the checkpoints of an earlier run (newest: {latest}); continue it with --resume, "
             f"or pass another --output"
         )
+    elif any((output / f"{name}.csv").exists() for name in EVALUATION_TABLES):
+        raise ValueError(
+            f"--output {output} holds the evaluation tables of an earlier model; a new model there would sit beside "
+            f"them. Pass another --output"
+        )
     settings = _train_settings(args, state.get("settings"))
     args.preset, args.set, args.seed, args.backend = settings["preset"], settings["set"], settings["seed"], settings["backend"]
     preset = _preset_from_args(args, training=True)
@@ -263,6 +268,13 @@ def command_train(args: argparse.Namespace) -> int:
         except KeyboardInterrupt:  # a second signal: no clean stop, the last captured state is still written
             checkpoints.stopped = True
             checkpoints.write()
+        except OSError as error:  # a checkpoint could not be written (full disk, size limit): the earlier ones are intact
+            print(
+                f"sb3-latentswarm train: error: could not write a checkpoint: {error}. The earlier checkpoints in "
+                f"{checkpoint_dir} are intact; free some space and resume with:\n  {_resume_command(output)}",
+                file=sys.stderr,
+            )
+            return 1
         finally:
             model.logger.close()
     train_seconds = time.perf_counter() - start

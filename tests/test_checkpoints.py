@@ -220,6 +220,29 @@ def test_cli_resume_refuses_other_settings_and_a_run_folder_is_not_reused(tmp_pa
     assert main(["train", "--resume", "--output", output, "--preset", "smoke"]) == 0  # complete: saved again, 0
 
 
+def test_cli_a_checkpoint_that_cannot_be_written_keeps_the_earlier_ones(tmp_path, capsys, monkeypatch):
+    import sb3_latentswarm.checkpoints as checkpoints
+
+    write, calls = checkpoints.write_bytes, []
+
+    def disk_full_on_the_second(path, data):
+        calls.append(path)
+        if len(calls) == 2:
+            raise OSError(28, "No space left on device")
+        write(path, data)
+
+    monkeypatch.setattr(checkpoints, "write_bytes", disk_full_on_the_second)
+    output = tmp_path / "run"
+    args = ["train", "--preset", "smoke", "--total-timesteps", str(5 * PER_UPDATE), "--save-freq", str(PER_UPDATE)]
+    assert main([*args, "--output", str(output), "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert "No space left on device" in err and f"train --resume --output {output}" in err
+    (kept,) = list_checkpoints(output / "checkpoints")
+    assert read_checkpoint_state(kept)["num_timesteps"] == PER_UPDATE and not (output / "model.zip").exists()
+    monkeypatch.undo()
+    assert main(["train", "--resume", "--output", str(output), "--no-progress"]) == 0
+
+
 def test_cli_unwritable_or_full_output_fails_before_training(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("a regular file")

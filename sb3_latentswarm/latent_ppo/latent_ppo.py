@@ -707,6 +707,13 @@ class LatentSwarmPPO(RecurrentPPO):
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfLatentSwarmPPO:
+        """Train for ``total_timesteps`` agent-steps (SB3's ``learn``).
+
+        With ``reset_num_timesteps=False`` (after :meth:`load` or :meth:`load_checkpoint`), ``total_timesteps`` are
+        the steps still to run: the schedules continue from ``num_timesteps`` and TensorBoard logging continues in the
+        model's last run folder. Pass a :class:`~sb3_latentswarm.checkpoints.SwarmCheckpointCallback` as ``callback``
+        to write checkpoints a run can resume from exactly (``docs/long_runs.md``).
+        """
         if self.env is None:
             raise ValueError("LatentSwarmPPO.learn needs an env: pass one to the constructor, load(..., env=...) or set_env")
         return super().learn(

@@ -339,8 +339,9 @@ def load_checkpoint(path: str | Path, env: VecEnv, device: th.device | str = "au
 class ResumableCSVOutputFormat(CSVOutputFormat):
     """SB3's ``progress.csv`` writer that continues an existing file.
 
-    :param resume_step: ``None``: start a new file; else keep the rows up to this ``time/total_timesteps`` (those
-        logged after the checkpoint are dropped: the resumed run logs them again) and append
+    :param resume_step: ``None``: start a new file; else keep the complete rows up to this ``time/total_timesteps``
+        (those logged after the checkpoint are dropped: the resumed run logs them again; a row cut off by a kill is
+        dropped too) and append
     """
 
     def __init__(self, filename: str | Path, resume_step: int | None = None):
@@ -352,8 +353,11 @@ class ResumableCSVOutputFormat(CSVOutputFormat):
         header = next(csv.reader(lines[:1]))
         column = header.index("time/total_timesteps") if "time/total_timesteps" in header else None
         kept = [lines[0]]
-        for line, row in zip(lines[1:], csv.reader(lines[1:])):
-            if column is None or (column < len(row) and row[column] and float(row[column]) <= resume_step):
+        for line in lines[1:]:
+            row = next(csv.reader([line]), [])
+            if not line.endswith("\n") or len(row) != len(header):  # a row cut off by a kill -9
+                continue
+            if column is None or (row[column] and float(row[column]) <= resume_step):
                 kept.append(line)
         write_text(path, "".join(kept))
         self.file = open(path, "r+")  # noqa: SIM115 - SB3's writer keeps the file open

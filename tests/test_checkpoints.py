@@ -126,6 +126,17 @@ def test_a_checkpoint_refuses_an_env_that_does_not_fit(tmp_path):
         read_checkpoint_state(tmp_path / "checkpoint_999_steps.zip")
 
 
+def test_progress_csv_resumes_after_the_checkpoint_without_a_row_cut_off_by_a_kill(tmp_path):
+    from sb3_latentswarm.checkpoints import ResumableCSVOutputFormat
+
+    path = tmp_path / "progress.csv"
+    path.write_text("a,time/total_timesteps\n1,120\n2,240\n3,360\n4,48")  # killed while writing the 4th row
+    writer = ResumableCSVOutputFormat(path, resume_step=240)
+    writer.write({"a": 5, "time/total_timesteps": 360}, {"a": None, "time/total_timesteps": None})
+    writer.close()
+    assert path.read_text() == "a,time/total_timesteps\n1,120\n2,240\n5,360\n"
+
+
 def test_tensorboard_continues_in_the_same_run_folder_after_load(tmp_path, monkeypatch):
     pytest.importorskip("tensorboard")
     monkeypatch.chdir(tmp_path)
@@ -243,12 +254,13 @@ def test_cli_a_checkpoint_that_cannot_be_written_keeps_the_earlier_ones(tmp_path
     assert main(["train", "--resume", "--output", str(output), "--no-progress"]) == 0
 
 
-def test_cli_unwritable_or_full_output_fails_before_training(tmp_path):
+def test_cli_unwritable_or_full_output_fails_before_training(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("a regular file")
-    command = cli("train", "--preset", "smoke", "--output", str(blocker / "run"))
-    result = subprocess.run(command, env=subprocess_env(), capture_output=True, text=True)
-    assert result.returncode == 2 and "not writable" in result.stderr and "Training preset" not in result.stdout
+    with pytest.raises(SystemExit):
+        main(["train", "--preset", "smoke", "--output", str(blocker / "run")])
+    captured = capsys.readouterr()
+    assert "not writable" in captured.err and "Training preset" not in captured.out
 
     # a size limit below one checkpoint (a full disk, as the process sees it): refused before training, and the good
     # model.zip already in the folder survives

@@ -482,7 +482,8 @@ class SwarmCheckpointCallback(BaseCallback):
 
     The run state is captured at the start of every rollout (between two updates). When ``stop`` reports a signal,
     the rollout in progress is abandoned (``_on_step`` returns ``False``, so SB3's ``learn`` returns normally) and the
-    state captured at its start is written: nothing of that update is kept, nothing is lost before it.
+    state captured at its start is written: nothing of that update is kept, nothing is lost before it. The same holds
+    when another callback ends training inside a rollout.
 
     :param save_freq: agent-steps between checkpoints (0: only at the end and when stopped); a checkpoint is written
         at the first rollout start at or past each multiple
@@ -518,6 +519,7 @@ class SwarmCheckpointCallback(BaseCallback):
         self.stopped = False
         """Whether training was stopped by a signal."""
         self._snapshot: tuple[int, bytes] | None = None
+        self._in_rollout = False
         self._written_at: int | None = None
         self._next_save = 0
 
@@ -539,6 +541,7 @@ class SwarmCheckpointCallback(BaseCallback):
         self._snapshot = (int(self.model.num_timesteps), checkpoint_bytes(self.model, self.settings, extra))
 
     def _on_rollout_start(self) -> None:
+        self._in_rollout = True
         self._capture()
         steps = self.model.num_timesteps
         if self.save_freq and steps >= self._next_save and steps > 0:
@@ -551,11 +554,13 @@ class SwarmCheckpointCallback(BaseCallback):
             return False
         return True
 
+    def _on_rollout_end(self) -> None:
+        self._in_rollout = False
+
     def _on_training_end(self) -> None:
-        if self.stopped or self._snapshot is None:
-            self.write()  # the state at the start of the abandoned rollout
-            return
-        if self.model.num_timesteps > self._snapshot[0]:  # the last update finished: capture the final state
+        # a rollout cut short (by a signal or another callback) is abandoned: the state at its start is written;
+        # after a finished update, the final state is captured first
+        if not self._in_rollout and (self._snapshot is None or self.model.num_timesteps > self._snapshot[0]):
             self._capture()
         self.write()
 

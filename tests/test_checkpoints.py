@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch as th
+from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_latentswarm import LatentSwarmPPO, make_vec_env
 from sb3_latentswarm.checkpoints import (
@@ -96,6 +97,19 @@ def test_resume_from_a_checkpoint_equals_the_uninterrupted_run(tmp_path):
     assert_same_training_state(uninterrupted, resumed)
     for key, value in uninterrupted._last_obs.items():
         np.testing.assert_array_equal(value, resumed._last_obs[key])
+
+    # training ended inside a rollout (here by another callback): the state at that rollout's start is written
+    class StopMidRollout(BaseCallback):
+        def _on_step(self) -> bool:
+            return self.num_timesteps < 2 * PER_UPDATE + PER_UPDATE // 2
+
+    cut = tmp_path / "cut"
+    smoke_model().learn(total, callback=[StopMidRollout(), SwarmCheckpointCallback(0, cut)])
+    (written,) = list_checkpoints(cut)
+    assert written.name == f"checkpoint_{2 * PER_UPDATE}_steps.zip"
+    again = LatentSwarmPPO.load_checkpoint(written, env=make_vec_env(SMOKE.n_envs, config=SMOKE.config, seed=99))
+    again.learn(total - again.num_timesteps, reset_num_timesteps=False)
+    assert_same_training_state(uninterrupted, again)
 
     # a checkpoint is plain data: the model entry has no pickle, arrays and tensors are read without unpickling
     with zipfile.ZipFile(checkpoint) as archive:

@@ -13,6 +13,9 @@ writes into ``--output`` (default ``runs/table1_PRESET/``; results published in 
 * ``coverage_vs_time.png`` (mean coverage against time per condition) and ``coverage_vs_p_fail.png`` (sampled
   actions; ``*_mean_actions.png`` beside them)
 * ``run.md``: command, commit, machine, wall times, seeds
+* ``evaluation.json``: what the tables were made from (the model file's SHA-256, config, episodes, env seeds,
+  actions, p_f values) and which are complete; each table is written, atomically, as soon as it is complete. A folder
+  holding another model's tables is refused
 
     python examples/reproduce_table1.py --preset smoke            # seconds, checks the pipeline
     python examples/reproduce_table1.py --preset fast             # ~45 min on a 2-core CPU
@@ -23,6 +26,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
+import json
 import sys
 import time
 from dataclasses import dataclass, field
@@ -40,6 +45,7 @@ from sb3_latentswarm.baselines import (
     RandomPlanner,
     train_independent_ppo,
 )
+from sb3_latentswarm.common.atomic import atomic_path, probe_writable, write_json, write_text
 from sb3_latentswarm.common.run_record import git_commit, write_run_record
 from sb3_latentswarm.envs import make_vec_env
 from sb3_latentswarm.evaluation import (
@@ -125,7 +131,8 @@ def plot_curves(curves: dict, labels: dict, path: Path, title: str) -> None:
     ax.set_title(title)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
 
 
@@ -143,8 +150,46 @@ def plot_p_fail(sweep: pd.DataFrame, paper: pd.DataFrame, path: Path) -> None:
     ax.set_ylabel("final coverage (%)")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
+
+
+def write_table(output: Path, name: str, frame: pd.DataFrame, markdown: str, record: dict) -> None:
+    """Write ``NAME.csv`` and ``NAME.md`` atomically as soon as the table is complete, and record it."""
+    with atomic_path(output / f"{name}.csv") as tmp:
+        frame.to_csv(tmp, index=False)
+    write_text(output / f"{name}.md", markdown + "\n")
+    record["tables"].append(name)
+    write_json(output / RECORD, record)
+
+
+RECORD = "evaluation.json"
+"""What the tables in the output folder were made from (model file hash, config, episodes, seeds, actions)."""
+TABLES = ("conditions", "p_fail_sweep", "baselines")
+
+
+def check_output(output: Path, record: dict | None) -> None:
+    """Refuse an output folder holding the tables of another model or evaluation (``record``: this one's identity;
+    ``None`` before a model is trained, when any earlier table is another model's)."""
+    present = [name for name in TABLES if (output / f"{name}.csv").exists()]
+    if not present:
+        return
+    recorded = json.loads((output / RECORD).read_text()) if (output / RECORD).exists() else None
+    keys = ("model_sha256", "config", "episodes", "env_seeds", "actions", "p_fails")
+    if record is None:
+        reason = "a model trained now would not be the one they were made from"
+    elif recorded is None:
+        reason = f"they have no {RECORD}"
+    else:
+        differ = [key for key in keys if recorded.get(key) != record.get(key)]
+        if not differ:
+            return
+        reason = f"they were made with another {', '.join(differ)}"
+    raise SystemExit(
+        f"reproduce_table1.py: {output} holds the tables of another run ({', '.join(present)}; {reason}); pass another "
+        f"--output"
+    )
 
 
 def main() -> None:
@@ -158,7 +203,9 @@ def main() -> None:
     if not args.model:  # the episodes must not replay the first episode of a training env copy
         check_held_out(eval_seed, episodes, seed, preset.n_envs)
     output = Path(args.output or f"runs/table1_{preset.name}")
-    output.mkdir(parents=True, exist_ok=True)
+    if not args.model:
+        check_output(output, None)  # before hours of training
+    probe_writable(output, room_bytes=1 << 20)
     timings: dict[str, float] = {}
     modes = ["sampled", "mean"] if args.actions == "both" else [args.actions]  # the learned policies'; planners have rules
     commit = git_commit()  # the code that runs, before anything is written
@@ -171,9 +218,23 @@ def main() -> None:
         env = make_vec_env(preset.n_envs, config=config, seed=seed)
         model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=seed, device=args.device, **preset.algo_kwargs)
         model.learn(total_timesteps=preset.total_timesteps, progress_bar=sys.stdout.isatty())
-        model.save(output / "model.zip")
+        model.save(output / "model.zip")  # atomic: a failed save leaves no partial file
         trained = f"trained here for {preset.total_timesteps:,} agent-steps ({preset.updates} updates), seed {seed}"
     timings["LatentSwarmPPO loading" if args.model else "LatentSwarmPPO training"] = time.perf_counter() - start
+
+    record = {
+        "model": str(args.model or output / "model.zip"),
+        "model_sha256": hashlib.sha256(Path(args.model or output / "model.zip").read_bytes()).hexdigest(),
+        "preset": preset.name,
+        "config": config.to_dict(),
+        "episodes": episodes,
+        "env_seeds": [eval_seed, eval_seed + episodes - 1],
+        "actions": modes,
+        "p_fails": list(preset.p_fails),
+        "tables": [],
+    }
+    check_output(output, record)
+    write_json(output / RECORD, record)
 
     # Table I, left: the five conditions; right: the p_f sweep; in every action mode, the same episodes
     start = time.perf_counter()
@@ -205,11 +266,10 @@ def main() -> None:
         sweep_tables[mode] = side_by_side(summarize(sweep, by="p_fail"))
         plot_p_fail(sweep, PAPER_TABLE1_P_FAIL, output / f"coverage_vs_p_fail{suffix}.png")
     conditions = pd.concat(condition_frames, ignore_index=True)
-    conditions.to_csv(output / "conditions.csv", index=False)
-    pd.concat(sweep_frames, ignore_index=True).to_csv(output / "p_fail_sweep.csv", index=False)
     seeds = seed_range(eval_seed, episodes)
-    (output / "conditions.md").write_text(_tables_by_mode(condition_tables, seeds) + "\n")
-    (output / "p_fail_sweep.md").write_text(_tables_by_mode(sweep_tables, seeds) + "\n")
+    write_table(output, "conditions", conditions, _tables_by_mode(condition_tables, seeds), record)
+    sweeps = pd.concat(sweep_frames, ignore_index=True)
+    write_table(output, "p_fail_sweep", sweeps, _tables_by_mode(sweep_tables, seeds), record)
     timings["evaluation of conditions and p_f sweep"] = time.perf_counter() - start
 
     # Beyond the paper: classical planners and an independent learner, same env, metrics and seeds
@@ -244,9 +304,8 @@ def main() -> None:
         proposed = conditions[(conditions["condition"] == "proposed") & (conditions["actions"] == mode)]
         rows.append(proposed.assign(condition=f"LatentSwarmPPO (proposed, {mode})"))
     baselines = pd.concat(rows, ignore_index=True)
-    baselines.to_csv(output / "baselines.csv", index=False)
     baseline_summary = summarize(baselines, by="condition")
-    (output / "baselines.md").write_text(f"Episode {seeds}.\n\n" + to_markdown(baseline_summary) + "\n")
+    write_table(output, "baselines", baselines, f"Episode {seeds}.\n\n" + to_markdown(baseline_summary), record)
     timings["baselines"] = time.perf_counter() - start
 
     facts = [

@@ -67,6 +67,17 @@ def positive_int(text: str) -> int:
     return value
 
 
+def non_negative_int(text: str) -> int:
+    """argparse type: an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
+
+
 def _preset_from_args(args: argparse.Namespace, model: Any = None, training: bool = False) -> Preset:
     """The ``--preset`` named, or, without one, the training config saved with ``model`` (else ``demo``), with the
     ``--set`` overrides; algorithm settings only when ``training``."""
@@ -96,13 +107,110 @@ def _print_table(title: str, markdown: str) -> None:
     print(markdown)
 
 
+CHECKPOINTS = "checkpoints"
+"""Subfolder of ``train --output`` holding the run's checkpoints (:mod:`sb3_latentswarm.checkpoints`)."""
+
+RESUME_SETTINGS = ("preset", "set", "seed", "total_timesteps", "backend")
+"""The ``train`` options a checkpoint stores and ``--resume`` compares (given ones must match; missing ones are taken
+from the checkpoint)."""
+
+
+def _train_settings(args: argparse.Namespace, stored: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The run's settings: the options given, else (with ``--resume``) the checkpoint's, else the defaults.
+
+    :raise ValueError: with ``--resume``, for a given option that differs from the checkpoint's, naming both values
+    """
+    stored = stored or {}
+    given = {
+        "preset": args.preset,
+        "set": sorted(args.set) if args.set else None,
+        "seed": args.seed,
+        "total_timesteps": args.total_timesteps,
+        "backend": args.backend,
+    }
+    if stored:
+        def same(name: str, value: Any) -> bool:
+            if name == "set":  # the same settings in any order
+                return parse_overrides(value) == parse_overrides(stored.get(name) or [])
+            return value == stored.get(name)
+
+        differ = [
+            f"{name} (checkpoint: {stored.get(name)!r}, command: {value!r})"
+            for name, value in given.items()
+            if value is not None and not same(name, value)
+        ]
+        if differ:
+            raise ValueError(
+                f"--resume: the run in {args.output} was started with other settings: {'; '.join(differ)}. Resume with "
+                f"the run's settings (omit the options to take them from the checkpoint) or start a new run in another "
+                f"--output"
+            )
+        return {name: stored.get(name) for name in RESUME_SETTINGS}
+    defaults = {"preset": "demo", "set": [], "seed": 0, "total_timesteps": None, "backend": "batched"}
+    return {name: defaults[name] if value is None else value for name, value in given.items()}
+
+
+def _resume_command(output: Path) -> str:
+    import shlex
+
+    return f"sb3-latentswarm train --resume --output {shlex.quote(str(output))}"
+
+
 def command_train(args: argparse.Namespace) -> int:
+    """``train``: validate every setting, probe the output folder, train with checkpoints, save ``model.zip``.
+
+    ``--resume`` continues the newest checkpoint in ``--output``; SIGINT / SIGTERM write a checkpoint and exit with
+    128 + the signal number (see ``docs/long_runs.md``).
+    """
+    from sb3_latentswarm.checkpoints import (
+        StopOnSignal,
+        SwarmCheckpointCallback,
+        configure_run_logger,
+        default_save_freq,
+        estimate_checkpoint_bytes,
+        latest_checkpoint,
+        read_checkpoint_state,
+    )
+    from sb3_latentswarm.common.atomic import probe_writable, write_json
     from sb3_latentswarm.common.checks import check_int
     from sb3_latentswarm.envs import make_vec_env
     from sb3_latentswarm.latent_ppo import LatentSwarmPPO
     from sb3_latentswarm.latent_ppo.latent_ppo import validate_algorithm_kwargs
 
+    output = Path(args.output or f"runs/{args.preset or 'demo'}")
+    args.output = str(output)
+    if output.exists() and not output.is_dir():
+        raise ValueError(f"--output {output} is an existing file, not a folder")
+    checkpoint_dir = output / CHECKPOINTS
+    latest = latest_checkpoint(checkpoint_dir)
+    state: dict[str, Any] = {}
+    if args.resume:
+        if latest is None:
+            raise ValueError(f"--resume: no checkpoint in {checkpoint_dir}; train without --resume to start a run there")
+        state = read_checkpoint_state(latest)
+    elif latest is not None:
+        raise ValueError(
+            f"--output {output} holds the checkpoints of an earlier run (newest: {latest}); continue it with --resume, "
+            f"or pass another --output"
+        )
+    elif any((output / f"{name}.csv").exists() for name in EVALUATION_TABLES):
+        raise ValueError(
+            f"--output {output} holds the evaluation tables of an earlier model; a new model there would sit beside "
+            f"them. Pass another --output"
+        )
+    settings = _train_settings(args, state.get("settings"))
+    args.preset, args.set, args.seed, args.backend = settings["preset"], settings["set"], settings["seed"], settings["backend"]
     preset = _preset_from_args(args, training=True)
+    total = settings["total_timesteps"] or preset.total_timesteps
+    settings["total_timesteps"] = total
+    per_update = preset.algo_kwargs["n_steps"] * preset.n_envs * preset.config.n_agents
+    stored = state.get("settings") or {}
+    if args.save_freq is None:  # the run's own frequency on --resume (not compared: it changes no result)
+        args.save_freq = stored.get("save_freq", default_save_freq(total, per_update))
+    if args.keep_checkpoints is None:
+        args.keep_checkpoints = stored.get("keep_checkpoints", 3)
+    save_freq = args.save_freq
+
     validate_algorithm_kwargs(**preset.algo_kwargs)  # before any env is built or file written
     if args.evaluate:
         check_int("eval_episodes", preset.eval_episodes, low=1)
@@ -110,35 +218,109 @@ def command_train(args: argparse.Namespace) -> int:
         from sb3_latentswarm.evaluation import check_held_out
 
         check_held_out(_eval_seed(args), preset.eval_episodes, args.seed, preset.n_envs)
-    output = Path(args.output or f"runs/{preset.name}")
-    output.mkdir(parents=True, exist_ok=True)
-    total = args.total_timesteps or preset.total_timesteps
+    # every setting is checked here, by building the env and the model, before any folder is created
     env = make_vec_env(preset.n_envs, config=preset.config, seed=args.seed, backend=args.backend)
-    model = LatentSwarmPPO(
-        "LatentSwarmPolicy",
-        env,
-        seed=args.seed,
-        device=args.device,
-        verbose=args.verbose,
-        tensorboard_log=args.tensorboard,
-        **preset.algo_kwargs,
-    )
-    print(f"Training preset '{preset.name}' ({preset.description}) for {total:,} agent-steps, seed {args.seed}")
+    tensorboard = args.tensorboard if args.tensorboard is not None else (state.get("settings") or {}).get("tensorboard")
+    if state:
+        model = LatentSwarmPPO.load_checkpoint(latest, env=env, device=args.device, tensorboard_log=tensorboard)
+        model.verbose = args.verbose
+    else:
+        model = LatentSwarmPPO(
+            "LatentSwarmPolicy",
+            env,
+            seed=args.seed,
+            device=args.device,
+            verbose=args.verbose,
+            tensorboard_log=tensorboard,
+            **preset.algo_kwargs,
+        )
+    tb_log_name = f"latentswarm_{preset.name}"
+    tensorboard_run = (state.get("settings") or {}).get("tensorboard_run")
+    if tensorboard is not None and tensorboard_run is None:
+        from stable_baselines3.common.utils import get_latest_run_id
+
+        tensorboard_run = str(Path(tensorboard) / f"{tb_log_name}_{get_latest_run_id(tensorboard, tb_log_name) + 1}")
+    room = 2 * estimate_checkpoint_bytes(model)  # a new checkpoint is written before the oldest is deleted
+    probe_writable(output, room_bytes=room)
+    if tensorboard_run is not None:
+        probe_writable(tensorboard_run)
+    run_settings = {
+        **settings,
+        "tensorboard": tensorboard,
+        "tensorboard_run": tensorboard_run,
+        "save_freq": save_freq,
+        "keep_checkpoints": args.keep_checkpoints,
+    }
+
+    resume_step = int(state["num_timesteps"]) if state else None
+    model.set_logger(configure_run_logger(output, args.verbose, tensorboard_run, resume_step))
+    remaining = total - model.num_timesteps
+    if state:
+        print(f"Resuming {latest} at {model.num_timesteps:,} of {total:,} agent-steps")
+    else:
+        print(f"Training preset '{preset.name}' ({preset.description}) for {total:,} agent-steps, seed {args.seed}")
+    print(f"Checkpoints every {save_freq:,} agent-steps in {checkpoint_dir} (keeping {args.keep_checkpoints})")
     start = time.perf_counter()
-    model.learn(total_timesteps=total, progress_bar=not args.no_progress, tb_log_name=f"latentswarm_{preset.name}")
+    with StopOnSignal() as stop:
+        checkpoints = SwarmCheckpointCallback(
+            save_freq, checkpoint_dir, keep=args.keep_checkpoints, settings=run_settings, stop=stop, verbose=args.verbose
+        )
+        try:
+            if remaining > 0:
+                model.learn(
+                    total_timesteps=remaining,
+                    callback=checkpoints,
+                    progress_bar=not args.no_progress and sys.stderr.isatty(),
+                    tb_log_name=tb_log_name,
+                    reset_num_timesteps=not state,
+                )
+        except KeyboardInterrupt:  # a second signal: no clean stop, the last captured state is still written
+            checkpoints.stopped = True
+            checkpoints.write()
+        except OSError as error:  # a checkpoint could not be written (full disk, size limit): the earlier ones are intact
+            print(
+                f"sb3-latentswarm train: error: could not write a checkpoint: {error}. The earlier checkpoints in "
+                f"{checkpoint_dir} are intact; free some space and resume with:\n  {_resume_command(output)}",
+                file=sys.stderr,
+            )
+            return 1
+        finally:
+            model.logger.close()
     train_seconds = time.perf_counter() - start
+    if checkpoints.stopped:
+        where = checkpoints.last_path or latest_checkpoint(checkpoint_dir)
+        print(
+            f"\nStopped by {stop.name or 'a second signal'} after {train_seconds:.0f} s; checkpoint {where} "
+            f"(the rollout in progress is not kept). Resume with:\n  {_resume_command(output)}",
+            file=sys.stderr,
+        )
+        return stop.exit_code if stop.signum else 130
     model_path = output / "model.zip"
     model.save(model_path)
-    (output / "config.json").write_text(json.dumps(preset.config.to_dict(), indent=2))
+    write_json(output / "config.json", preset.config.to_dict())
     print(f"Trained in {train_seconds:.0f} s; saved {model_path}")
+    if stop.signum is not None:  # the signal came during the last update: the model is complete, skip the rest
+        print(f"Stopped by {stop.name} after the last update", file=sys.stderr)
+        return stop.exit_code
     if args.evaluate:
-        _evaluate_and_print(model, preset, args, output, p_fail_sweep=False, baselines=True)
+        _evaluate_and_print(model, preset, args, output, p_fail_sweep=False, baselines=True, model_path=model_path)
     return 0
 
 
 def _evaluate_and_print(
-    model, preset: Preset, args: argparse.Namespace, output: Path, p_fail_sweep: bool, baselines: bool
+    model,
+    preset: Preset,
+    args: argparse.Namespace,
+    output: Path,
+    p_fail_sweep: bool,
+    baselines: bool,
+    model_path: Path | str | None = None,
 ) -> None:
+    """Evaluate, print and write each table as soon as it is complete (atomically), with ``evaluation.json``.
+
+    :raise ValueError: when ``output`` holds the tables of another evaluation (:func:`_check_evaluation_folder`)
+    """
+    from sb3_latentswarm.common.atomic import atomic_path, write_json, write_text
     from sb3_latentswarm.evaluation import (
         CONDITIONS,
         evaluate,
@@ -148,6 +330,18 @@ def _evaluate_and_print(
         summarize,
         to_markdown,
     )
+
+    record = _evaluation_record(preset, args, model_path or args.model, p_fail_sweep=p_fail_sweep, baselines=baselines)
+    record = _check_evaluation_folder(output, record)
+    output.mkdir(parents=True, exist_ok=True)
+    write_json(output / EVALUATION_RECORD, record)
+
+    def finished(name: str, frame, markdown: str) -> None:
+        with atomic_path(output / f"{name}.csv") as tmp:
+            frame.to_csv(tmp, index=False)
+        write_text(output / f"{name}.md", markdown + "\n")
+        record["tables"][name] = record["requested"][name]
+        write_json(output / EVALUATION_RECORD, record)
 
     config, episodes, seed = preset.config, preset.eval_episodes, _eval_seed(args)
     seeds = seed_range(seed, episodes)
@@ -172,18 +366,16 @@ def _evaluate_and_print(
     import pandas as pd
 
     table = pd.concat(frames, ignore_index=True)
-    table.to_csv(output / "conditions.csv", index=False)
     summary = summarize(table, by="condition")
+    finished("conditions", table, to_markdown(summary))
     actions = "sampled" if args.stochastic else "mean"
     title = f"Conditions (p_f = {config.p_fail}, {episodes} episodes each, episode {seeds}, {actions} actions)"
     _print_table(title, to_markdown(summary))
-    (output / "conditions.md").write_text(to_markdown(summary) + "\n")
     if p_fail_sweep:
         sweep = evaluate_p_fail_sweep(model, p_fails=preset.p_fails, **policy_kwargs)
-        sweep.to_csv(output / "p_fail_sweep.csv", index=False)
         sweep_summary = summarize(sweep, by="p_fail")
+        finished("p_fail_sweep", sweep, to_markdown(sweep_summary))
         _print_table(f"p_f sweep (proposed, episode {seeds}, {actions} actions)", to_markdown(sweep_summary))
-        (output / "p_fail_sweep.md").write_text(to_markdown(sweep_summary) + "\n")
     print(f"\nTables written to {output}/")
 
 
@@ -203,72 +395,138 @@ def _load_model(args: argparse.Namespace):
 
 
 EVALUATION_RECORD = "evaluation.json"
-"""Written beside every evaluation's tables: what they were made from (config, episodes, seed, actions, model)."""
+"""Written beside every evaluation's tables: what they were made from (model file hash, config, conditions, p_f values,
+episodes and seeds, actions) and which tables are complete."""
+
+EVALUATION_TABLES = ("conditions", "p_fail_sweep")
+"""The tables an evaluation writes (``NAME.csv`` and ``NAME.md``)."""
+
+RECORD_IDENTITY = ("model_sha256", "config", "episodes", "env_seeds", "actions")
+"""What every table of one evaluation folder shares; each table adds its own inputs (``requested``)."""
 
 
-def _evaluation_record(preset: Preset, args: argparse.Namespace) -> dict[str, Any]:
+def file_sha256(path: str | Path) -> str:
+    """The SHA-256 of a file's bytes (hex), read in 1 MiB blocks."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _evaluation_record(
+    preset: Preset,
+    args: argparse.Namespace,
+    model_path: str | Path | None = None,
+    p_fail_sweep: bool | None = None,
+    baselines: bool | None = None,
+) -> dict[str, Any]:
+    """What an evaluation is made from: the shared :data:`RECORD_IDENTITY` and, per table, its own inputs."""
+    from sb3_latentswarm.evaluation import CONDITIONS
     from sb3_latentswarm.version import __version__
 
+    model_path = model_path if model_path is not None else args.model
+    p_fail_sweep = bool(getattr(args, "p_fail_sweep", False)) if p_fail_sweep is None else p_fail_sweep
+    baselines = (not getattr(args, "no_baselines", False)) if baselines is None else baselines
+    episodes = preset.eval_episodes
+    conditions = list(CONDITIONS) + (["random", "lawnmower", "frontier"] if baselines else [])
+    requested: dict[str, Any] = {"conditions": {"conditions": conditions, "p_fail": preset.config.p_fail}}
+    if p_fail_sweep:
+        requested["p_fail_sweep"] = {"conditions": ["proposed"], "p_fails": list(preset.p_fails)}
     return {
-        "model": str(args.model),
+        "model": str(model_path),
+        "model_sha256": file_sha256(model_path),
         "preset": preset.name,
         "config": preset.config.to_dict(),
-        "episodes": preset.eval_episodes,
+        "episodes": episodes,
         "seed": args.seed,
-        "eval_seed": _eval_seed(args),
+        "env_seeds": [_eval_seed(args), _eval_seed(args) + episodes - 1],
         "actions": "sampled" if args.stochastic else "mean",
-        "baselines": not args.no_baselines,
+        "requested": requested,
+        "tables": {},
         "sb3_latentswarm": __version__,
     }
 
 
-def _holds_other_tables(folder: Path, record: dict[str, Any]) -> bool:
-    """Whether ``folder`` holds tables of an evaluation other than ``record`` (or of an unrecorded one)."""
-    if not any(folder.glob("*.csv")):
-        return False
+def _evaluation_conflict(folder: Path, record: dict[str, Any]) -> str | None:
+    """Why ``folder``'s tables cannot sit beside those of ``record`` (``None``: they can).
+
+    Tables without a record, a record of another model file, config, episodes, seeds or actions, or a table this
+    evaluation would rewrite from other inputs are conflicts. Tables of the same model and settings are kept.
+    """
+    present = [name for name in EVALUATION_TABLES if (folder / f"{name}.csv").exists()]
+    if not present:
+        return None
     path = folder / EVALUATION_RECORD
     if not path.exists():
-        return True
+        return f"it holds {', '.join(f'{n}.csv' for n in present)} without an {EVALUATION_RECORD} saying what they are"
     try:
         recorded = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ValueError(f"{path} cannot be read as JSON ({error}); remove it or pass another --output") from None
+        return f"its {path} cannot be read as JSON ({error}); remove it or pass another --output"
     if not isinstance(recorded, dict):
-        raise ValueError(f"{path} must hold a JSON object (an evaluation record); remove it or pass another --output")
-    return any(recorded.get(key) != value for key, value in record.items() if key != "sb3_latentswarm")
+        return f"its {path} must hold a JSON object (an evaluation record); remove it or pass another --output"
+    differ = [key for key in RECORD_IDENTITY if recorded.get(key) != record[key]]
+    if differ:
+        return f"its tables were made with another {', '.join(differ)} (see its {EVALUATION_RECORD})"
+    tables = recorded.get("tables") or {}
+    unrecorded = [name for name in present if name not in tables]
+    if unrecorded:
+        return f"{', '.join(unrecorded)}.csv is not recorded in its {EVALUATION_RECORD} (an interrupted or older evaluation)"
+    changed = [name for name in record["requested"] if name in tables and tables[name] != record["requested"][name]]
+    if changed:
+        return f"its {', '.join(changed)} table was made from other inputs (see its {EVALUATION_RECORD})"
+    return None
+
+
+def _check_evaluation_folder(folder: Path, record: dict[str, Any]) -> dict[str, Any]:
+    """The record to write into ``folder``: ``record`` with the folder's other complete tables of the same evaluation.
+
+    :raise ValueError: naming the folder and what differs when it holds another evaluation's tables
+    """
+    conflict = _evaluation_conflict(folder, record)
+    if conflict:
+        raise ValueError(
+            f"{folder} holds the tables of another evaluation: {conflict}. Pass an empty or new --output (tables are "
+            f"never mixed or overwritten by another model's)"
+        )
+    path = folder / EVALUATION_RECORD
+    kept = json.loads(path.read_text()).get("tables", {}) if path.exists() else {}
+    kept = {name: inputs for name, inputs in kept.items() if (folder / f"{name}.csv").exists()}
+    return {**record, "tables": {name: inputs for name, inputs in kept.items() if name not in record["requested"]}}
 
 
 def _evaluation_folder(args: argparse.Namespace, record: dict[str, Any]) -> Path:
     """``--output``, or ``evaluation/`` next to the model; never a folder with tables of another evaluation.
 
     Without ``--output``, an ``evaluation/`` that holds other tables is kept and this evaluation goes to
-    ``evaluation-HASH/`` (HASH: of its record); an ``--output`` that holds other tables is an error.
+    ``evaluation-HASH/`` (HASH: of what it is made from), and says so; an ``--output`` that holds other tables is an
+    error naming the folder and what differs.
     """
     if args.output:
         folder = Path(args.output)
-        if _holds_other_tables(folder, record):
-            raise ValueError(
-                f"--output {folder} holds the tables of another evaluation (see its {EVALUATION_RECORD}); pass an empty "
-                f"or new folder"
-            )
+        _check_evaluation_folder(folder, record)
         return folder
     folder = Path(args.model).parent / "evaluation"
-    if _holds_other_tables(folder, record):
-        digest = hashlib.sha1(json.dumps(record, sort_keys=True).encode()).hexdigest()[:8]
+    if _evaluation_conflict(folder, record):
+        identity = {key: record[key] for key in (*RECORD_IDENTITY, "requested")}
+        digest = hashlib.sha1(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:8]
+        reason = _evaluation_conflict(folder, record)
         folder = folder.with_name(f"evaluation-{digest}")
-        print(f"{folder.parent / 'evaluation'} holds another evaluation's tables; writing to {folder}")
+        print(f"{folder.parent / 'evaluation'} holds another evaluation's tables ({reason}); writing to {folder}")
     return folder
 
 
 def command_evaluate(args: argparse.Namespace) -> int:
+    from sb3_latentswarm.common.atomic import probe_writable
+
     model = _load_model(args)
     preset = _preset_from_args(args, model)
     if args.episodes:
         preset = dataclasses.replace(preset, eval_episodes=args.episodes)
     record = _evaluation_record(preset, args)
     output = _evaluation_folder(args, record)
-    output.mkdir(parents=True, exist_ok=True)
-    (output / EVALUATION_RECORD).write_text(json.dumps(record, indent=2))
+    probe_writable(output, room_bytes=1 << 20)
     _evaluate_and_print(model, preset, args, output, p_fail_sweep=args.p_fail_sweep, baselines=not args.no_baselines)
     return 0
 
@@ -414,18 +672,44 @@ def build_parser() -> argparse.ArgumentParser:
     train = sub.add_parser("train", help="train LatentSwarmPPO on a preset")
     add_common(train, "demo")
     train.add_argument("--total-timesteps", type=positive_int, default=None, help="override the preset's budget (agent-steps)")
-    train.add_argument("--output", default=None, help="folder for model.zip and tables (default runs/PRESET)")
+    train.add_argument(
+        "--output",
+        default=None,
+        help="folder of the run: model.zip, progress.csv, checkpoints/, tables (default runs/PRESET); one run per folder",
+    )
+    train.add_argument(
+        "--save-freq",
+        type=non_negative_int,
+        default=None,
+        metavar="AGENT_STEPS",
+        help="agent-steps between checkpoints in OUTPUT/checkpoints/ (default: about 5 %% of the budget, in whole "
+        "updates; with --resume, the run's; 0: only at the end and when stopped). A checkpoint is also written on "
+        "SIGINT / SIGTERM",
+    )
+    train.add_argument(
+        "--keep-checkpoints",
+        type=positive_int,
+        default=None,
+        metavar="K",
+        help="keep the newest K checkpoints (default 3; with --resume, the run's)",
+    )
+    train.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the run in --output from its newest checkpoint (settings not given are the checkpoint's; given "
+        "ones must match)",
+    )
     train.add_argument("--evaluate", action="store_true", help="evaluate all conditions and baselines afterwards")
     add_eval_seed(train)
     train.add_argument("--tensorboard", default=None, help="TensorBoard log folder")
     train.add_argument("--verbose", type=int, default=0)
     train.add_argument(
         "--backend",
-        default="batched",
+        default=None,
         choices=("batched", "supersuit"),
         help="vec env backend: 'batched' (default, fast) or 'supersuit' (PettingZoo env via SuperSuit); same episodes",
     )
-    train.set_defaults(func=command_train)
+    train.set_defaults(func=command_train, preset=None, seed=None)
 
     evaluate = sub.add_parser("evaluate", help="evaluate a saved model on the five conditions of Table I")
     add_common(evaluate, None)
@@ -543,6 +827,9 @@ def main(argv: list[str] | None = None) -> int:
         kind = "" if isinstance(error, (ValueError, TypeError)) else f"{type(error).__name__}: "
         message = " ".join(str(error).split())  # one line, whatever the library wrote
         parser.exit(2, f"sb3-latentswarm {args.command}: error: {kind}{message}\n")
+    except KeyboardInterrupt:  # Ctrl-C outside training: the files finished so far are complete (atomic writes)
+        print(f"\nsb3-latentswarm {args.command}: interrupted; the files it finished are kept", file=sys.stderr)
+        return 130
     return 1
 
 

@@ -401,3 +401,35 @@ def test_stray_or_damaged_trial_folders_are_named(tmp_path, capsys, damage, mess
     with pytest.raises(SystemExit) as error:
         main(["sweep", "--preset", "smoke", "--seeds", "2", "--variant", "proposed", "--output", str(tmp_path), "--resume"])
     assert error.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_a_sweep_trial_killed_mid_way_resumes_from_its_checkpoint(tmp_path):
+    from sb3_latentswarm.checkpoints import latest_checkpoint, read_checkpoint_state
+
+    spec = SweepSpec.create("smoke", 1, variants=["proposed"], eval_episodes=1)
+    output = tmp_path / "sweep"
+    output.mkdir()
+    spec.save(output / "sweep.json")
+    trial = plan_trials(spec, "test")[0]
+    work = output / "running" / trial["trial_id"]  # where the sweep's trainable trains this trial
+    script = (
+        "import json, sys, time\nfrom pathlib import Path\nfrom sb3_latentswarm.checkpoints import SwarmCheckpointCallback\n"
+        "from sb3_latentswarm.experiments import SweepSpec, train_and_evaluate\nwrite = SwarmCheckpointCallback.write\n"
+        "def write_then_hang(self):\n    path = write(self)\n    print('CHECKPOINT', flush=True)\n    time.sleep(600)\n"
+        "SwarmCheckpointCallback.write = write_then_hang\ntrial = json.loads(sys.argv[1])\n"
+        "train_and_evaluate({**trial, 'spec': SweepSpec.from_dict(trial['spec'])}, Path(sys.argv[2]), device='cpu')\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
+    process = subprocess.Popen([sys.executable, "-c", script, json.dumps({**trial, "spec": spec.to_dict()}), str(work)],
+                               env=env, stdout=subprocess.PIPE, text=True)
+    assert process.stdout.readline().strip() == "CHECKPOINT"
+    process.kill()  # the sweep's trial, killed with kill -9 after its first checkpoint
+    process.wait(timeout=60)
+    stopped = read_checkpoint_state(latest_checkpoint(work / "checkpoints"))["num_timesteps"]
+
+    result = run_sweep_command("--preset", "smoke", "--seeds", "1", "--variant", "proposed", "--eval-episodes", "1",
+                               "--output", str(output), "--resume", "--verbose", "0")
+    assert result.returncode == 0, result.stderr[-3000:]
+    record = json.loads((output / "trials" / trial["trial_id"] / "trial.json").read_text())
+    assert 0 < record["resumed_from_agent_steps"] == stopped < record["trained_agent_steps"]
+    assert not work.exists() and not (output / "trials" / trial["trial_id"] / "checkpoints").exists()

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import torch as th
 
+from sb3_latentswarm.common.atomic import write_text
+
 
 def git_commit() -> str:
     """The short hash of ``HEAD``, marked when tracked files differ from it; ``"unknown"`` outside a git checkout.
@@ -59,6 +61,6 @@ def write_run_record(
         "",
     ]
     text = "\n".join(lines)
-    (output / "run.md").write_text(text)
+    write_text(output / "run.md", text)  # atomic: a failed write leaves the earlier record
     print(text)
     return text

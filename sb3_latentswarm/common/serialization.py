@@ -52,7 +52,8 @@ RUN_STATE = ("_last_obs", "_last_episode_starts", "_last_original_obs", "_last_l
 """Attributes of a run in progress, or derived from saved ones: rebuilt on load, never saved."""
 
 MACHINE_SPECIFIC = ("tensorboard_log",)
-"""Paths of the machine that saved the model: saved as ``None`` (pass ``tensorboard_log=...`` to ``load``)."""
+"""Paths that may name the machine that saved the model: kept when relative (``runs/tb``: a loaded model continues
+logging there, as SB3's does), saved as ``None`` when absolute (pass ``tensorboard_log=...`` to ``load``)."""
 
 NOT_CONSTRUCTOR_ARGUMENTS = ("self", "policy", "env", "device", "_init_setup_model")
 
@@ -296,6 +297,13 @@ def _is_deque_of_dicts(value: Any) -> bool:
     return isinstance(value, collections.deque) and all(isinstance(v, dict) for v in value)
 
 
+def _is_relative_path(value: Any) -> bool:
+    if not isinstance(value, str) or not 0 < len(value) <= 255 or "\0" in value:
+        return False
+    path = pathlib.PurePath(value)
+    return not path.is_absolute() and ".." not in path.parts
+
+
 def _is_space(value: Any) -> bool:
     return isinstance(value, (spaces.Dict, spaces.Box))
 
@@ -311,7 +319,10 @@ STATE_ATTRIBUTES: dict[str, tuple[str, Any]] = {
     "action_noise": ("None", lambda v: v is None),
     "start_time": ("a finite number", _is_number),
     "learning_rate": ("a finite number or a schedule", _is_schedule),
-    "tensorboard_log": ("None", lambda v: v is None),
+    "tensorboard_log": (
+        "None or a relative path without '..' (at most 255 characters)",
+        lambda v: v is None or _is_relative_path(v),
+    ),
     "_episode_num": ("an int >= 0", lambda v: _is_int(v) and v >= 0),
     "use_sde": ("False", lambda v: v is False),
     "sde_sample_freq": ("an int", _is_int),
@@ -532,7 +543,8 @@ def save_plain(model: Any, path: str | pathlib.Path | io.BufferedIOBase, exclude
     """Save ``model`` (an SB3 algorithm) in SB3's zip layout with a plain-data ``data`` entry.
 
     What SB3's ``save`` would store, less :data:`RUN_STATE`, restricted to :func:`saved_attributes` (other attributes
-    set on the model are not saved); :data:`MACHINE_SPECIFIC` attributes are stored as ``None``.
+    set on the model are not saved); :data:`MACHINE_SPECIFIC` attributes are stored as ``None`` when they are absolute
+    paths.
     A schedule given as a plain function cannot be stored: it is saved as its current value, with a warning.
     """
     algorithm = type(model)
@@ -546,7 +558,7 @@ def save_plain(model: Any, path: str | pathlib.Path | io.BufferedIOBase, exclude
         if name in excluded or name not in saved:
             continue
         if name in MACHINE_SPECIFIC:
-            value = None
+            value = None if value is None or pathlib.Path(value).is_absolute() else str(value)
         elif callable(value) and not isinstance(value, type) and _schedule_to_plain(value) is None:
             current, which = float(value(model._current_progress_remaining)), "current"
             if not current > 0:  # a schedule that decayed to 0 (end of training): a constant 0 would not load

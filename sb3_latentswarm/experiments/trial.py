@@ -190,22 +190,59 @@ def finished_trial_dirs(output: Path) -> list[Path]:
     return sorted(path.parent for path in paths if not path.parent.name.startswith("."))
 
 
+TRIAL_CHECKPOINTS = "checkpoints"
+"""Subfolder of a trial's work folder with its training checkpoints (:mod:`sb3_latentswarm.checkpoints`)."""
+
+
+def _trial_identity(trial: dict[str, Any]) -> dict[str, Any]:
+    """What a trial's checkpoint must match to be continued: its id, variant, seed, grid point and the sweep spec."""
+    keys = ("trial_id", "variant", "train_seed", "grid_point", "spec")
+    identity = {key: trial[key] for key in keys[:-1]} | {"spec": trial["spec"].to_dict()}
+    return json.loads(json.dumps(identity, default=repr))
+
+
 def train_and_evaluate(
     trial: dict[str, Any],
     output: Path,
     report: Callable[[dict[str, float]], None] | None = None,
     device: str = "auto",
+    resume: bool = True,
+    save_freq: int | None = None,
+    keep_checkpoints: int = 2,
 ) -> dict[str, Any]:
     """Train the trial's variant, save ``model.zip``, evaluate it, and write its raw results into ``output``.
+
+    LatentSwarmPPO variants (all but ``independent``) write checkpoints into ``output/checkpoints/`` while they
+    train; with ``resume`` (the default) a rerun into the same ``output`` continues from the newest one, exactly where
+    it stopped (same parameters as an uninterrupted trial, see :mod:`sb3_latentswarm.checkpoints`). The
+    ``independent`` RecurrentPPO baseline has no checkpoints and restarts from zero. SIGINT / SIGTERM (in the main
+    thread) write a checkpoint and raise :class:`~sb3_latentswarm.checkpoints.TrainingInterrupted`.
 
     :param trial: ``trial_id``, ``variant``, ``train_seed``, ``grid_point``, the sweep's
         :class:`~sb3_latentswarm.experiments.spec.SweepSpec` ``spec`` and ``commit``; see
         :func:`sb3_latentswarm.experiments.sweep.plan_trials`
+    :param output: the trial's work folder (keep it across reruns to resume)
     :param report: called with the progress metrics after every rollout
+    :param resume: continue from the newest checkpoint in ``output`` (``False``: an existing one is an error)
+    :param save_freq: agent-steps between checkpoints (default: about 5 % of the budget, whole updates; 0: only when
+        stopped and at the end)
+    :param keep_checkpoints: how many checkpoints to keep
     :return: the trial record (also written as ``trial.json``); ``episodes.csv`` holds one row per evaluation
         episode, ``progress.csv`` one row per rollout
+    :raise sb3_latentswarm.checkpoints.CheckpointError: for a checkpoint of another trial in ``output``, or any
+        checkpoint when ``resume`` is ``False``
     """
     from sb3_latentswarm.baselines.independent import train_independent_ppo
+    from sb3_latentswarm.checkpoints import (
+        CheckpointError,
+        StopOnSignal,
+        SwarmCheckpointCallback,
+        TrainingInterrupted,
+        default_save_freq,
+        latest_checkpoint,
+        read_checkpoint_state,
+    )
+    from sb3_latentswarm.common.atomic import atomic_path, probe_writable, write_json
     from sb3_latentswarm.common.run_record import machine_summary
     from sb3_latentswarm.envs import make_vec_env
     from sb3_latentswarm.latent_ppo import LatentSwarmPPO
@@ -218,6 +255,21 @@ def train_and_evaluate(
     env_seed = training_env_seed(train_seed, preset.n_envs)
     env = make_vec_env(preset.n_envs, config=train_config, seed=env_seed)
     progress = TuneProgress(report)
+    output = Path(output)
+    checkpoint_dir = output / TRIAL_CHECKPOINTS
+    latest = latest_checkpoint(checkpoint_dir) if variant != "independent" else None
+    identity = _trial_identity(trial)
+    resumed_from = None
+    if latest is not None:
+        if not resume:
+            raise CheckpointError(f"{checkpoint_dir} holds checkpoints (newest {latest.name}); pass resume=True to continue")
+        stored = read_checkpoint_state(latest)
+        if stored["settings"] != identity:
+            differ = sorted(k for k in identity if stored["settings"].get(k) != identity[k])
+            raise CheckpointError(f"{latest} is a checkpoint of another trial (it differs in {differ}); use another folder")
+        resumed_from = int(stored["num_timesteps"])
+        progress.rows = list(stored["extra"].get("progress_rows", []))
+    probe_writable(output, room_bytes=1 << 20)
     start = time.perf_counter()
     if variant == "independent":
         model = train_independent_ppo(
@@ -225,9 +277,27 @@ def train_and_evaluate(
         )
         trained_steps = model.model.num_timesteps
     else:
-        algo_kwargs = variant_algo_kwargs(variant, preset.algo_kwargs)
-        model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=train_seed, device=device, **algo_kwargs)
-        model.learn(total_timesteps=preset.total_timesteps, callback=progress)
+        if latest is not None:
+            model = LatentSwarmPPO.load_checkpoint(latest, env=env, device=device)
+        else:
+            algo_kwargs = variant_algo_kwargs(variant, preset.algo_kwargs)
+            model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=train_seed, device=device, **algo_kwargs)
+        per_update = preset.algo_kwargs["n_steps"] * preset.n_envs * preset.config.n_agents
+        freq = default_save_freq(preset.total_timesteps, per_update) if save_freq is None else save_freq
+        with StopOnSignal() as stop:
+            checkpoints = SwarmCheckpointCallback(
+                freq,
+                checkpoint_dir,
+                keep=keep_checkpoints,
+                settings=identity,
+                extra_state=lambda: {"progress_rows": progress.rows},
+                stop=stop,
+            )
+            remaining = preset.total_timesteps - model.num_timesteps
+            if remaining > 0:
+                model.learn(total_timesteps=remaining, callback=[progress, checkpoints], reset_num_timesteps=latest is None)
+        if checkpoints.stopped:
+            raise TrainingInterrupted(stop.signum, checkpoints.last_path)
         trained_steps = model.num_timesteps
     train_seconds = time.perf_counter() - start
     output.mkdir(parents=True, exist_ok=True)
@@ -240,8 +310,10 @@ def train_and_evaluate(
     eval_seconds = time.perf_counter() - start
     labels = {"trial_id": trial["trial_id"], "variant": variant, "train_seed": train_seed, **grid_labels(grid_point)}
     episodes = episodes.assign(**labels)
-    episodes.to_csv(output / "episodes.csv", index=False)
-    pd.DataFrame(progress.rows).assign(**labels).to_csv(output / "progress.csv", index=False)
+    with atomic_path(output / "episodes.csv") as tmp:
+        episodes.to_csv(tmp, index=False)
+    with atomic_path(output / "progress.csv") as tmp:
+        pd.DataFrame(progress.rows).assign(**labels).to_csv(tmp, index=False)
 
     record = {
         **labels,
@@ -260,6 +332,7 @@ def train_and_evaluate(
         "eval_env_seeds": [spec.eval_seed, spec.eval_seed + spec.eval_episodes - 1],
         "budget_agent_steps": preset.total_timesteps,
         "trained_agent_steps": int(trained_steps),
+        "resumed_from_agent_steps": resumed_from,
         "train_seconds": train_seconds,
         "eval_seconds": eval_seconds,
         "eval_sets": [s.to_dict() for s in spec.eval_sets],
@@ -267,12 +340,13 @@ def train_and_evaluate(
         # the first cell's proposed-condition means, for Tune's console
         "eval_coverage": float(episodes["coverage"].iloc[: spec.eval_episodes].mean()),
     }
-    (output / "trial.json").write_text(json.dumps(record, indent=2, default=repr))
+    write_json(output / "trial.json", json.loads(json.dumps(record, default=repr)))
     return record
 
 
 __all__ = [
     "EVAL_SEED_BASE",
+    "TRIAL_CHECKPOINTS",
     "all_conditions",
     "SCORE_METRICS",
     "VARIANTS",

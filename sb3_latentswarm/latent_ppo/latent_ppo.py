@@ -19,6 +19,7 @@ import inspect
 import io
 import math
 import os
+import pathlib
 import warnings
 from collections import deque
 from typing import Any, ClassVar, TypeVar
@@ -34,6 +35,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from stable_baselines3.common.utils import FloatSchedule, explained_variance, obs_as_tensor, safe_mean
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
+from sb3_latentswarm.common.atomic import atomic_path
 from sb3_latentswarm.common.buffers import SwarmRolloutBuffer
 from sb3_latentswarm.common.checks import check_bool, check_choice, check_float, check_int
 from sb3_latentswarm.common.schedules import paper_learning_rate
@@ -533,11 +535,38 @@ class LatentSwarmPPO(RecurrentPPO):
     def save(self, path, exclude=None, include=None) -> None:  # type: ignore[override]
         """Save the model as plain data and tensors (no pickle): see :mod:`sb3_latentswarm.common.serialization`.
 
-        The file holds no path of this machine (``tensorboard_log`` is not kept) and no state of a rollout in progress.
+        The file holds no path of this machine (an absolute ``tensorboard_log`` is not kept; a relative one is) and no
+        state of a rollout in progress (a checkpoint holds that: :meth:`load_checkpoint`). A path is written atomically:
+        to a temporary file in the same folder, then renamed, so a failed save (full disk, size limit, Ctrl-C) leaves
+        the earlier file intact. A missing suffix becomes ``.zip``, as in SB3.
         """
         self.save_format = SAVE_FORMAT
         self.saved_by_version = __version__
-        save_plain(self, path, exclude=exclude, include=include)
+        if not isinstance(path, (str, os.PathLike)):  # a file object: SB3 writes into it
+            save_plain(self, path, exclude=exclude, include=include)
+            return
+        path = pathlib.Path(path)
+        if path.suffix == "":  # SB3's open_path adds ".zip"
+            path = path.with_suffix(".zip")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(path) as tmp:  # a failed save leaves the earlier file as it was
+            save_plain(self, tmp, exclude=exclude, include=include)
+
+    @classmethod
+    def load_checkpoint(cls, path, env: GymEnv, device: th.device | str = "auto", **kwargs) -> LatentSwarmPPO:
+        """Rebuild a run from a checkpoint of :class:`~sb3_latentswarm.checkpoints.SwarmCheckpointCallback`.
+
+        Continue with ``model.learn(total - model.num_timesteps, reset_num_timesteps=False)``: on the batched backend
+        the parameters then match a run that never stopped, bit for bit (see :mod:`sb3_latentswarm.checkpoints`).
+
+        :param env: the run's env (same config, backend and number of copies)
+        :param kwargs: passed to :meth:`load`
+        :raise sb3_latentswarm.checkpoints.CheckpointError: (a ``ValueError``) for a missing or damaged checkpoint or
+            an env that does not fit it
+        """
+        from sb3_latentswarm.checkpoints import load_checkpoint
+
+        return load_checkpoint(path, env=env, device=device, **kwargs)
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "_last_latent_state", "_swarm_summaries"]
@@ -806,6 +835,13 @@ class LatentSwarmPPO(RecurrentPPO):
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfLatentSwarmPPO:
+        """Train for ``total_timesteps`` agent-steps (SB3's ``learn``).
+
+        With ``reset_num_timesteps=False`` (after :meth:`load` or :meth:`load_checkpoint`), ``total_timesteps`` are
+        the steps still to run: the schedules continue from ``num_timesteps`` and TensorBoard logging continues in the
+        model's last run folder. Pass a :class:`~sb3_latentswarm.checkpoints.SwarmCheckpointCallback` as ``callback``
+        to write checkpoints a run can resume from exactly (``docs/long_runs.md``).
+        """
         if self.env is None:
             raise ValueError("LatentSwarmPPO.learn needs an env: pass one to the constructor, load(..., env=...) or set_env")
         return super().learn(

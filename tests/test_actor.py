@@ -308,11 +308,16 @@ def test_pickled_old_files_load_with_the_old_actor(tmp_path):
 
 # ---------------------------------------------------------------------------------------------- presets and the CLI
 def test_presets_name_their_actor_and_set_reaches_the_policy(tmp_path):
+    from sb3_latentswarm.presets import ACTOR, PAPER_ACTOR
+
     for name in ("paper", "fast", "coordination", "demo", "smoke"):
         policy_kwargs = get_preset(name).algo_kwargs["policy_kwargs"]
-        assert policy_kwargs["action_distribution"] == "gaussian" and policy_kwargs["log_std_mapping"] == "tanh", name
-    preset = get_preset("coordination").with_overrides(**parse_overrides(["action_distribution=squashed_gaussian"]))
-    assert preset.algo_kwargs["policy_kwargs"]["action_distribution"] == "squashed_gaussian"
+        actor = ACTOR if get_preset(name).algo_kwargs.get("normalize_value") else PAPER_ACTOR  # the CPU presets' options
+        assert {key: policy_kwargs[key] for key in actor} == actor, name
+    assert get_preset("paper").algo_kwargs["policy_kwargs"]["action_distribution"] == "gaussian"  # Sec. III-D
+    assert get_preset("coordination").algo_kwargs["policy_kwargs"]["action_distribution"] == "squashed_gaussian"
+    preset = get_preset("coordination").with_overrides(**parse_overrides(["action_distribution=gaussian"]))
+    assert preset.algo_kwargs["policy_kwargs"]["action_distribution"] == "gaussian"
     assert preset.algo_kwargs["policy_kwargs"]["latent_dim"] == 64  # the rest of the preset's policy is kept
     args = ["--set", "action_distribution=squashed_gaussian", "log_std_mapping=clamp", "--output", str(tmp_path)]
     assert main(["train", "--preset", "smoke", "--no-progress", *args]) == 0

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_latentswarm.presets import PRESETS, Preset, get_preset, override_targets
+from sb3_latentswarm.version import __version__
 
 
 def _literal(raw: str) -> Any:
@@ -114,7 +115,7 @@ def command_train(args: argparse.Namespace) -> int:
         tensorboard_log=args.tensorboard,
         **preset.algo_kwargs,
     )
-    print(f"Training preset '{preset.name}' ({preset.description}) for {total:,} agent-steps, seed {args.seed}")
+    print(f"Training preset '{preset.name}'{' with ' + ' '.join(args.set) if args.set else ''} for {total:,} agent-steps: {preset.n_envs} swarms of {preset.config.n_agents}, n_steps {model.n_steps}, {-(-total // (model.n_steps * env.num_envs))} updates, seed {args.seed}")  # noqa: E501
     start = time.perf_counter()
     model.learn(total_timesteps=total, progress_bar=not args.no_progress, tb_log_name=f"latentswarm_{preset.name}")
     train_seconds = time.perf_counter() - start
@@ -188,8 +189,6 @@ EVALUATION_RECORD = "evaluation.json"
 
 
 def _evaluation_record(preset: Preset, args: argparse.Namespace) -> dict[str, Any]:
-    from sb3_latentswarm.version import __version__
-
     return {
         "model": str(args.model),
         "preset": preset.name,
@@ -327,6 +326,7 @@ def command_sweep(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sb3-latentswarm", description="Train and evaluate latent-state UAV swarms.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     def add_common(p: argparse.ArgumentParser, default_preset: str | None) -> None:
@@ -345,8 +345,19 @@ def build_parser() -> argparse.ArgumentParser:
             "and for train LatentSwarmPPO / LatentSwarmPolicy arguments (learning_rate=1e-4, n_steps=100, "
             "latent_dim=32); values are Python literals, validated as in Python",
         )
-        p.add_argument("--seed", type=int, default=0)
-        p.add_argument("--device", default="auto")
+        p.add_argument(
+            "--seed",
+            type=int,
+            default=0,
+            help="random seed (default 0): for train, the model's seed and the env copies' (copy k gets SEED + k); for "
+            "evaluate and render, the episode seed the evaluation episodes start from",
+        )
+        p.add_argument(
+            "--device",
+            default="auto",
+            help="torch device of the model, as SB3 takes it: auto (default: CUDA if available, else CPU), cpu, cuda, "
+            "cuda:1",
+        )
         p.add_argument(
             "--threads",
             type=int,
@@ -375,7 +386,13 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--output", default=None, help="folder for model.zip and tables (default runs/PRESET)")
     train.add_argument("--evaluate", action="store_true", help="evaluate all conditions and baselines afterwards")
     train.add_argument("--tensorboard", default=None, help="TensorBoard log folder")
-    train.add_argument("--verbose", type=int, default=0)
+    train.add_argument(
+        "--verbose",
+        type=int,
+        default=0,
+        choices=(0, 1, 2),
+        help="SB3's verbosity: 0 quiet (default), 1 the training log table every update, 2 also debug messages",
+    )
     train.add_argument(
         "--backend",
         default="batched",
@@ -386,11 +403,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     evaluate = sub.add_parser("evaluate", help="evaluate a saved model on the five conditions of Table I")
     add_common(evaluate, None)
-    evaluate.add_argument("--model", required=True)
+    evaluate.add_argument("--model", required=True, help="a LatentSwarmPPO model.zip (e.g. runs/demo/model.zip)")
     add_trust_pickle(evaluate)
     evaluate.add_argument("--episodes", type=positive_int, default=None, help="episodes per row (default: the preset's)")
     evaluate.add_argument("--p-fail-sweep", action="store_true", help="also run the p_f sweep of Table I (right)")
-    evaluate.add_argument("--no-baselines", action="store_true")
+    evaluate.add_argument(
+        "--no-baselines", action="store_true", help="skip the random, lawnmower and frontier planners (default: run them)"
+    )
     evaluate.add_argument(
         "--output",
         default=None,
@@ -403,7 +422,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_common(render, None)
     render.add_argument("--model", default=None, help="saved model (default: random actions)")
     add_trust_pickle(render)
-    render.add_argument("--condition", default="proposed")
+    render.add_argument(
+        "--condition",
+        default="proposed",
+        help="test-time communication condition of sb3_latentswarm.evaluation.CONDITIONS (default proposed; also "
+        "full_comm, no_comm, no_predictor, no_memory, ...)",
+    )
     render.add_argument("--output", default="episode.gif", help="file ending in .gif or .mp4 (needs imageio-ffmpeg)")
     render.add_argument("--fps", type=positive_int, default=10)
     render.set_defaults(func=command_render)

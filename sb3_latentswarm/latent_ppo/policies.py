@@ -19,6 +19,7 @@ The actor side reads only ``local_obs``, ``proprio`` and ``link_row``; the criti
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -135,7 +136,7 @@ class LatentSwarmPolicy(BasePolicy):
             # RecurrentPPO passes use_sde; anything else is a typo the user should hear about
             unexpected = set(unused_kwargs) - {"use_sde"}
             if unexpected:
-                raise TypeError(f"LatentSwarmPolicy got unexpected keyword argument(s): {sorted(unexpected)}")
+                raise TypeError(_unexpected_kwargs_message(unexpected))
             if unused_kwargs.get("use_sde"):
                 raise ValueError("LatentSwarmPolicy does not support use_sde=True")
         check_observation_space(observation_space)
@@ -463,6 +464,29 @@ class LatentSwarmPolicy(BasePolicy):
         if agent_names is not None:
             return dict(zip(agent_names, actions_np)), new_state
         return actions_np, new_state
+
+
+SB3_POLICY_KWARGS = {
+    "net_arch": "predictor_hidden, decoder_hidden, critic_hidden, actor_hidden (one width each)",
+    "lstm_hidden_size": "latent_dim (d_mu = d_tau = d_rho), or map_dim, task_dim, memory_dim",
+    "n_lstm_layers": "none: the latent state is one GRU cell per part (Sec. III-B)",
+    "shared_lstm": "none: the critic reads the global state, not the latent state",
+    "enable_critic_lstm": "none: the critic reads the global state, not the latent state",
+    "activation_fn": "none: the MLPs use tanh",
+    "features_extractor_class": "none: the encoders are fixed by the observation keys",
+}
+"""SB3 / sb3-contrib ``policy_kwargs`` names and what ``LatentSwarmPolicy`` takes instead, for the error message."""
+
+
+def _unexpected_kwargs_message(unexpected: set[str]) -> str:
+    """``TypeError`` text for unknown ``policy_kwargs``: the valid names, and what to use instead of SB3's names."""
+    internal = {"self", "observation_space", "action_space", "lr_schedule", "unused_kwargs"}
+    valid = [name for name in inspect.signature(LatentSwarmPolicy.__init__).parameters if name not in internal]
+    hints = "".join(f"; {name} -> {SB3_POLICY_KWARGS[name]}" for name in sorted(unexpected) if name in SB3_POLICY_KWARGS)
+    return (
+        f"LatentSwarmPolicy got unexpected keyword argument(s) {sorted(unexpected)}{hints}. "
+        f"Valid policy_kwargs are: {', '.join(valid)}"
+    )
 
 
 def _check_log_std_bounds(bounds: Any) -> tuple[float, float]:

@@ -2,8 +2,9 @@
 
 Reads the sweep's ``scores.csv`` (one row per trial and evaluation cell: a run's mean over the cell's episodes) and
 writes ``claims.md`` / ``claims.csv`` beside it: each claim, its target, the measured across-seed means with 95 %
-stratified-bootstrap intervals (the sweep's aggregation), and whether the target is met. Nothing is tuned here: the
-cells are the ones the sweep evaluated, on held-out seeds.
+stratified-bootstrap intervals (the sweep's aggregation), and whether the target is met, and one figure per claim
+(``claim_<k>_<name>.png``: the cells the claim compares, with their intervals). Nothing is tuned here: the cells
+are the ones the sweep evaluated, on held-out seeds.
 
     python examples/paper_claims.py --sweep runs/sweeps/coordination --burst-cells table1=10 burst30=30
 
@@ -27,6 +28,7 @@ import pandas as pd
 
 from sb3_latentswarm.evaluation import to_markdown
 from sb3_latentswarm.experiments.aggregate import aggregate_scores
+from sb3_latentswarm.experiments.report import plot_cells
 
 PAPER_COLLISIONS = 8.7
 """Collisions per episode of the paper's Proposed model (Table I, N = 3)."""
@@ -110,6 +112,54 @@ def check_claims(scores: pd.DataFrame, base_cell: str, burst_cells: dict[str, fl
     return rows
 
 
+def claim_figures(
+    scores: pd.DataFrame, base_cell: str, burst_cells: dict[str, float], p_fail_cells: list[str], output: Path
+) -> list[Path]:
+    """One figure per claim, ``claim_<k>_<name>.png`` in ``output``, from the same cells as :func:`check_claims`."""
+    aggregate = Cells(scores).table.reset_index()
+    present = set(map(tuple, aggregate[["variant", "eval_set", "condition"]].to_numpy()))
+
+    def cell(label: str, variant: str, eval_set: str, condition: str) -> list[tuple[str, dict[str, object]]]:
+        selection = {"variant": variant, "eval_set": eval_set, "condition": condition}
+        return [(label, selection)] if (variant, eval_set, condition) in present else []
+
+    figures = {
+        "claim_1_message_free_learners": dict(
+            cells=cell("proposed, with links", "proposed", base_cell, "proposed")
+            + cell("no_comm learner (trained without links)", "no_comm", base_cell, "no_comm")
+            + cell("independent RecurrentPPO", "independent", base_cell, "proposed"),
+            title="Claim 1: the proposed learner against the message-free learners",
+        ),
+        "claim_2_full_comm": dict(
+            cells=[c for condition in ("proposed", "full_comm", "full_comm_in_range")
+                   for c in cell(condition.replace("_", " "), "proposed", base_cell, condition)],
+            title="Claim 2: the proposed model with every link forced up",
+        ),
+        "claim_3_bursty_outages": dict(
+            cells=[c for name, length in burst_cells.items() for condition in ("proposed", "no_predictor", "no_memory")
+                   for c in cell(f"{condition.replace('_', ' ')}, mean outage {length:g}", "proposed", name, condition)],
+            title="Claim 3: predictor and memory under bursty outages",
+        ),
+        "claim_4_p_fail": dict(
+            cells=[c for name in p_fail_cells for c in cell(name.replace("=", " = "), "proposed", name, "proposed")],
+            title="Claim 4: the proposed model's coverage across p_f",
+        ),
+        "claim_5_collisions": dict(
+            cells=cell("proposed", "proposed", base_cell, "proposed")
+            + cell("no_comm learner (own condition)", "no_comm", base_cell, "no_comm")
+            + cell("independent RecurrentPPO", "independent", base_cell, "proposed"),
+            title="Claim 5: collisions per episode",
+            metric="collisions",
+            reference=(PAPER_COLLISIONS, f"paper: {PAPER_COLLISIONS}"),
+        ),
+    }
+    paths = []
+    for name, figure in figures.items():
+        if figure["cells"]:
+            paths.append(plot_cells(aggregate, path=output / f"{name}.png", **figure))
+    return paths
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sweep", required=True, help="a sweep output folder (with scores.csv and sweep.json)")
@@ -140,7 +190,9 @@ def main() -> None:
               f"per variant: {seeds}). Means across training seeds with 95 % stratified-bootstrap intervals.\n\n")
     markdown = header + to_markdown(table) + "\n"
     (output / "claims.md").write_text(markdown)
+    figures = claim_figures(scores, args.base_cell, burst_cells, p_fail_cells, output)
     print(markdown)
+    print("Figures: " + ", ".join(str(path) for path in figures))
 
 
 if __name__ == "__main__":

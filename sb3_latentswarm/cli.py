@@ -15,6 +15,7 @@ import hashlib
 import json
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -273,9 +274,9 @@ def _overrides_of(option: str, pairs: list[str]) -> dict[str, Any]:
         raise ValueError(str(error).replace("--set", option, 1)) from None
 
 
-def _parse_grid(pairs: list[str]) -> dict[str, list[Any]]:
+def _parse_grid(pairs: list[str]) -> dict[str, Sequence[Any]]:
     """``["p_fail=0.1,0.3"]`` -> ``{"p_fail": [0.1, 0.3]}`` (values typed like ``--set``'s)."""
-    grid: dict[str, list[Any]] = {}
+    grid: dict[str, Sequence[Any]] = {}
     for pair in pairs:
         name, _, raw = pair.partition("=")
         if not raw:

@@ -206,7 +206,7 @@ def _demo() -> Preset:
         config=config,
         n_envs=8,
         total_timesteps=90_000,
-        algo_kwargs=_algo_kwargs(40, 10, 160, 32, 64, learning_rate=3e-4),
+        algo_kwargs=_algo_kwargs(40, 10, 160, 32, 64, learning_rate=3e-4, mappo=True),
         baseline_timesteps=20_000,
         eval_episodes=10,
         description="12x12, N=2, T=40, d=32: learns to beat a random swarm in about a minute.",

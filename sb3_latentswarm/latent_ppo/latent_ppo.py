@@ -33,11 +33,12 @@ from stable_baselines3.common.utils import FloatSchedule, explained_variance, ob
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
 from sb3_latentswarm.common.buffers import SwarmRolloutBuffer
+from sb3_latentswarm.common.observations import STATE_OBS_KEYS
 from sb3_latentswarm.common.schedules import paper_learning_rate
 from sb3_latentswarm.common.serialization import UnsafeModelFileError, load_plain, read_data, save_plain
 from sb3_latentswarm.common.type_aliases import LatentState
 from sb3_latentswarm.config import SwarmConfig
-from sb3_latentswarm.latent_ppo.policies import CRITIC_KEYS, LatentSwarmPolicy, SequenceEvaluation, check_observation_space
+from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy, SequenceEvaluation, check_observation_space
 from sb3_latentswarm.version import __version__
 
 SelfLatentSwarmPPO = TypeVar("SelfLatentSwarmPPO", bound="LatentSwarmPPO")
@@ -347,7 +348,7 @@ class LatentSwarmPPO(RecurrentPPO):
             gamma=self.gamma,
             gae_lambda=self.gae_lambda,
             n_envs=self.n_envs,
-            swarm_keys=CRITIC_KEYS,  # the global state s_t, the same for every agent of a swarm: stored once per swarm
+            swarm_keys=STATE_OBS_KEYS,  # the global state s_t, the same for every agent of a swarm: stored once per swarm
         )
 
     def set_env(self, env: GymEnv, force_reset: bool = True) -> None:

@@ -31,13 +31,17 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 
-from sb3_latentswarm.common.observations import ACTOR_KEYS, as_vec_observation
+from sb3_latentswarm.common.observations import (
+    ACTOR_OBS_KEYS,
+    POSITION_DIMS,
+    PROPRIO_POSITION,
+    STATE_OBS_KEYS,
+    as_vec_observation,
+)
 from sb3_latentswarm.common.type_aliases import LatentState
 from sb3_latentswarm.common.value_norm import ValueNorm
 
-CRITIC_KEYS = ("swarm_proprio", "global_map")
-REQUIRED_KEYS = ACTOR_KEYS + CRITIC_KEYS
-POSITION_DIMS = 3
+REQUIRED_KEYS = ACTOR_OBS_KEYS + STATE_OBS_KEYS
 """The first three entries of the proprioceptive state e_t are the (normalized) position p_t."""
 
 
@@ -315,7 +319,7 @@ class LatentSwarmPolicy(BasePolicy):
         # Sec. III-A, asymmetric update: mu_t = E_phi(mu_{t-1}, o_t, p_t, m^mu_t), m^mu_t = 0 when nothing arrived
         # (received_message is already zero there, so the predictor never reaches the map state)
         map_message = received_message[:, : self.map_dim]
-        position = proprio[:, :POSITION_DIMS]
+        position = proprio[:, PROPRIO_POSITION]
         map_state = self.map_encoder(th.cat([local_obs, position, map_message], dim=-1), map_prev)
 
         # Sec. III-A: tau_t = F_theta(tau_{t-1}, o_t, e_t, mu_{t-1}, mbar_t)
@@ -393,7 +397,7 @@ class LatentSwarmPolicy(BasePolicy):
         n_steps = actions.shape[0]
         state = initial_state
         task_states, map_states, received, predicted, has_message = [], [], [], [], []
-        actor_obs = {key: obs[key] for key in ACTOR_KEYS}
+        actor_obs = {key: obs[key] for key in ACTOR_OBS_KEYS}
         # the recurrence is the only loop: over time; every step handles all agents of all swarms at once
         for t in range(n_steps):
             step = self.latent_step({key: value[t] for key, value in actor_obs.items()}, state, episode_starts[t])
@@ -408,7 +412,7 @@ class LatentSwarmPolicy(BasePolicy):
         flat_actions = actions.flatten(0, 1)
         log_prob = distribution.log_prob(flat_actions).view(n_steps, -1)
         entropy = distribution.entropy().view(n_steps, -1)
-        critic_obs = {key: obs[key].flatten(0, 1) for key in CRITIC_KEYS}
+        critic_obs = {key: obs[key].flatten(0, 1) for key in STATE_OBS_KEYS}
         values = self.critic_output(critic_obs).view(n_steps, -1)
         map_reconstruction = self.decode_map(th.stack(map_states))
         return SequenceEvaluation(
@@ -441,9 +445,9 @@ class LatentSwarmPolicy(BasePolicy):
         :param deterministic: use the mean action
         :return: actions (clipped to the action space) and the new state, a :class:`LatentState` of numpy arrays
         """
-        observation, agent_names = as_vec_observation(observation, ACTOR_KEYS, "LatentSwarmPolicy")
+        observation, agent_names = as_vec_observation(observation, ACTOR_OBS_KEYS, "LatentSwarmPolicy")
         self.set_training_mode(False)
-        obs_tensor = {key: th.as_tensor(observation[key], device=self.device) for key in ACTOR_KEYS}
+        obs_tensor = {key: th.as_tensor(observation[key], device=self.device) for key in ACTOR_OBS_KEYS}
         if obs_tensor["local_obs"].dim() == len(self.observation_space["local_obs"].shape):
             raise ValueError("predict needs a batch of whole swarms (leading slot dimension), got a single observation")
         n_slots = obs_tensor["local_obs"].shape[0]

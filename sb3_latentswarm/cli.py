@@ -430,7 +430,7 @@ def build_parser() -> argparse.ArgumentParser:
         "full_comm, no_comm, no_predictor, no_memory, ...)",
     )
     render.add_argument("--output", default="episode.gif", help="file ending in .gif or .mp4 (needs imageio-ffmpeg)")
-    render.add_argument("--fps", type=positive_int, default=10)
+    render.add_argument("--fps", type=positive_int, default=10, help="frames per second of the animation (default 10)")
     render.set_defaults(func=command_render)
 
     sweep = sub.add_parser("sweep", help="train seeds x variants (x a grid) on Ray Tune; across-seed intervals (extra sweep)")

@@ -77,7 +77,7 @@ def test_sb3_policy_kwargs_get_the_valid_names():
     env = make_vec_env(1, config=get_preset("smoke").config, seed=0)
     sb3_style = {"net_arch": [64], "lstm_hidden_size": 8}
     with pytest.raises(TypeError) as error:
-        LatentSwarmPPO("LatentSwarmPolicy", env, n_steps=20, batch_size=20, policy_kwargs=sb3_style)
+        LatentSwarmPPO("LatentSwarmPolicy", env, n_steps=20, chunk_length=5, batch_size=30, policy_kwargs=sb3_style)
     message = str(error.value)
     assert "['lstm_hidden_size', 'net_arch']" in message
     assert "net_arch -> predictor_hidden, decoder_hidden, critic_hidden, actor_hidden" in message

@@ -53,12 +53,12 @@ PAPER_LEARNING_RATE = paper_learning_rate()
 """1e-4 for the first 1000 of 1600 updates, 1e-5 after (Sec. IV)."""
 
 N_AGENT_KEYS = ("link_row", "swarm_proprio")
+"""Observation keys whose shape depends on the number of agents; the policy's parameters do not."""
 
 VALUE_LOSSES = ("mse", "huber")
 GRAD_CLIP_MODES = ("global", "per_group")
 LOSS_TERMS = ("policy", "value", "entropy", "map", "pred")
 """The terms of the joint loss, as named in ``train/grad_norm_<term>``."""
-"""Observation keys whose shape depends on the number of agents; the policy's parameters do not."""
 
 
 def auxiliary_losses(evaluation: SequenceEvaluation, global_map: th.Tensor) -> tuple[th.Tensor, th.Tensor]:

@@ -55,47 +55,62 @@ def aggregate_markdown(aggregate: pd.DataFrame, group_columns: list[str]) -> str
     return "\n".join(sections)
 
 
+def _interval_panels(rows: pd.DataFrame, cell_columns: list[str]) -> list[tuple[str, list[tuple[str, pd.DataFrame]]]]:
+    """``(title, [(x label, rows of that cell), ...])`` per panel: one panel per evaluation set, and the sets of a
+    single cell (a p_f sweep's points) side by side in one panel."""
+    panel_columns = [c for c in cell_columns if c == "eval_set"] or cell_columns[:1]
+    other = [c for c in cell_columns if c not in panel_columns]
+    panels, singles = [], []
+    for panel, panel_rows in rows.groupby(panel_columns, sort=False):
+        name = ", ".join(map(str, panel if isinstance(panel, tuple) else (panel,)))
+        cells = [(" ".join(map(str, cell if isinstance(cell, tuple) else (cell,))).replace("_", " "), cell_rows)
+                 for cell, cell_rows in panel_rows.groupby(other, sort=False)] if other else [(name, panel_rows)]
+        if len(cells) == 1:
+            singles.append((f"{name}: {cells[0][0]}" if other else name, cells[0][1]))
+        else:
+            panels.append((name, cells))
+    if singles:
+        panels.append(("one-cell evaluation sets", singles))
+    return panels
+
+
 def plot_intervals(aggregate: pd.DataFrame, group_columns: list[str], output: Path) -> list[str]:
-    """``intervals_<metric>.png``: one panel per evaluation set (two panels a row), bars per condition and variant."""
+    """``intervals_<metric>.png``: a panel per evaluation set (two a row; the one-cell sets share a panel), a bar
+    per condition and variant with its interval."""
     from matplotlib.figure import Figure  # no pyplot: the caller's matplotlib backend is left alone
 
     cell_columns = [c for c in group_columns if c != "variant"]
-    panel_columns = [c for c in cell_columns if c == "eval_set"] or cell_columns[:1]
     names = []
     for metric, rows in aggregate.groupby("metric", sort=False):
         variants = list(dict.fromkeys(rows["variant"]))
-        panels = list(rows.groupby(panel_columns, sort=False))
+        panels = _interval_panels(rows, cell_columns)
         n_cols = min(2, len(panels))
         n_rows = -(-len(panels) // n_cols)
-        figure = Figure(figsize=(5.6 * n_cols, 2.9 * n_rows))
+        figure = Figure(figsize=(6.0 * n_cols, 3.4 * n_rows))
         axes = figure.subplots(n_rows, n_cols, squeeze=False)
         width = 0.8 / len(variants)
-        for axis, (panel, panel_rows) in zip(axes.flat, panels):
-            other = [c for c in cell_columns if c not in panel_columns]
-            cells = list(dict.fromkeys(map(tuple, panel_rows[other].astype(str).to_numpy())))
+        for axis, (title, cells) in zip(axes.flat, panels):
             for k, variant in enumerate(variants):
-                by_cell = {tuple(map(str, r[other])): r for _, r in panel_rows[panel_rows["variant"] == variant].iterrows()}
                 x, height, low, high = [], [], [], []
-                for i, cell in enumerate(cells):
-                    if cell in by_cell and not np.isnan(by_cell[cell]["iqm"]):
-                        r = by_cell[cell]
+                for i, (_, cell_rows) in enumerate(cells):
+                    found = cell_rows[cell_rows["variant"] == variant]
+                    if len(found) and not np.isnan(found["iqm"].iloc[0]):
+                        r = found.iloc[0]
                         x.append(i + (k - (len(variants) - 1) / 2) * width)
                         height.append(r["iqm"])
                         low.append(r["iqm"] - r["iqm_low"])
                         high.append(r["iqm_high"] - r["iqm"])
                 axis.bar(x, height, width, yerr=[low, high], capsize=2, label=variant, color=f"C{k}")
-            labels = [c[0].replace("_", " ") if len(c) == 1 else " ".join(c) for c in cells]  # condition (p_fail)
-            axis.set_xticks(range(len(cells)), labels, fontsize=8, rotation=20, ha="right")
-            axis.set_title(f"{', '.join(map(str, panel if isinstance(panel, tuple) else (panel,)))}", fontsize=10)
-            axis.tick_params(axis="y", labelsize=8)
+            axis.set_xticks(range(len(cells)), [label for label, _ in cells], fontsize=10, rotation=20, ha="right")
+            axis.set_title(title, fontsize=12)
+            axis.tick_params(axis="y", labelsize=10)
         for axis in axes.flat[len(panels):]:
             axis.set_visible(False)
         handles, labels = axes[0, 0].get_legend_handles_labels()
-        figure.legend(handles, labels, loc="upper right", ncol=len(variants), fontsize=9, frameon=False)
-        figure.supylabel(f"{METRIC_LABELS.get(metric, metric)}, IQM across training seeds", fontsize=10)
-        figure.suptitle("IQM across training seeds, 95 % stratified-bootstrap CIs, per evaluation set", fontsize=11, x=0.02,
-                        ha="left")
-        figure.tight_layout(rect=(0, 0, 1, 1 - 0.35 / (2.9 * n_rows)))
+        figure.legend(handles, labels, loc="upper right", ncol=len(variants), fontsize=11, frameon=False)
+        figure.supylabel(f"{METRIC_LABELS.get(metric, metric)}, IQM across training seeds", fontsize=12)
+        figure.suptitle("IQM across training seeds, 95 % stratified-bootstrap CIs", fontsize=12, x=0.02, ha="left")
+        figure.tight_layout(rect=(0, 0, 1, 1 - 0.4 / (3.4 * n_rows)))
         name = f"intervals_{metric}.png"
         figure.savefig(output / name, dpi=100)
         names.append(name)

@@ -84,7 +84,7 @@ def plot_intervals(aggregate: pd.DataFrame, group_columns: list[str], output: Pa
     for metric, rows in aggregate.groupby("metric", sort=False):
         variants = list(dict.fromkeys(rows["variant"]))
         panels = _interval_panels(rows, cell_columns)
-        n_cols = min(2, len(panels))
+        n_cols = 2 if len(panels) > 2 else 1  # two panels a row, stacked when there are only two
         n_rows = -(-len(panels) // n_cols)
         figure = Figure(figsize=(6.0 * n_cols, 3.4 * n_rows))
         axes = figure.subplots(n_rows, n_cols, squeeze=False)

@@ -85,6 +85,7 @@ def test_sb3_policy_kwargs_get_the_valid_names():
     assert "Valid policy_kwargs are: latent_dim, map_dim" in message
 
 
+@pytest.mark.slow  # trains and loads two committed models: about 10 s unloaded, minutes on a loaded machine
 def test_the_demo_script_runs_and_reads_its_tables(tmp_path):
     result = subprocess.run(
         [sys.executable, "examples/demo.py", "--total-timesteps", "720", "--episodes", "2", "--coordination-episodes", "2"],

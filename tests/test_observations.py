@@ -18,7 +18,10 @@ def test_env_policy_and_planners_use_the_same_key_objects():
     assert policies.REQUIRED_KEYS == ACTOR_OBS_KEYS + STATE_OBS_KEYS and planners.ACTOR_OBS_KEYS is ACTOR_OBS_KEYS
 
 
-@pytest.mark.parametrize("config", [SwarmConfig(), SwarmConfig(grid_width=13, cell_size=2.5, min_altitude=8.0, initial_altitude=12.0)])
+SHIFTED = SwarmConfig(grid_width=13, cell_size=2.5, min_altitude=8.0, initial_altitude=12.0)
+
+
+@pytest.mark.parametrize("config", [SwarmConfig(), SHIFTED])
 def test_proprio_decodes_to_the_core_state(config):
     core = SwarmBatch(config, n_swarms=3)
     core.reset(seeds=[0, 1, 2])

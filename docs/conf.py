@@ -66,45 +66,82 @@ DATA_SUFFIXES = (".csv", ".json", ".txt", ".pdf")
 # results.md places each results folder with a line `<!-- results-folder: NAME -->` under a heading of its own, so the
 # page's order and titles are chosen by its author, not by the folders' alphabetical order.
 RESULTS_MARKER = re.compile(r"^<!-- results-folder: ([\w.-]+) -->$", re.MULTILINE)
-# What each plot that the scripts write shows; the caption under it in results.md.
+# What each plot that the scripts write shows; the first sentence of its caption in results.md (the second names the
+# run it comes from: the folder and the heading of its section).
 PLOT_CAPTIONS = {
     "coverage_vs_time": "Mean coverage (%) against the episode's step under each condition of Table I, p_f = 0.3.",
     "coverage_vs_p_fail": "Final coverage (%) against the link failure probability p_f (proposed model), next to the "
     "paper's Table I (right).",
     "learning_curve": "Mean final coverage (%) against PPO updates under each condition, with mean and sampled "
     "actions; bands are 95 % confidence intervals of the mean.",
+    "learning_curves": "Coverage of finished training episodes and episode return against agent-steps, per learner: "
+    "mean across training seeds with a 95 % bootstrap band.",
+    "intervals_coverage": "Final coverage (%) per evaluation set, condition and learner: IQM across training seeds with "
+    "95 % stratified-bootstrap intervals.",
+    "intervals_collisions": "Collisions per episode per evaluation set, condition and learner: IQM across training seeds "
+    "with 95 % stratified-bootstrap intervals.",
+    "intervals_steps_to_90": "Steps to 90 % coverage (episodes that reach it) per evaluation set, condition and learner: "
+    "IQM across training seeds with 95 % stratified-bootstrap intervals.",
+    "intervals_reached_90": "Share of episodes reaching 90 % coverage per evaluation set, condition and learner: IQM "
+    "across training seeds with 95 % stratified-bootstrap intervals.",
     "episode": "One evaluation episode (proposed condition): the UAVs, their links and the coverage map.",
     "episode_trajectories": "The UAVs' trajectories in that episode (o: start, x: a UAV in dropout).",
 }
+# results.md places a figure itself (the claims' figures) with a MyST figure directive; the folder then leaves it out.
+FIGURE_DIRECTIVE = re.compile(r"^```\{figure\} (\S+)$", re.MULTILINE)
+HEADING = re.compile(r"^(#{1,6}) (.+)$", re.MULTILINE)
 
 
-def _results_folder(folder: Path) -> list[str]:
-    """MyST for one ``docs/results/<run>/`` folder, placed under a heading that ``results.md`` writes.
+def _report_text(path: Path) -> list[str]:
+    """A folder's ``run.md`` (or other markdown) inlined in a collapsed section: without its ``#`` title (alike in
+    every folder), headings as bold lines (a section inside a ``<details>`` block would break the page's outline),
+    and without its image lines (the folder's plots are placed as captioned figures)."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    if lines and lines[0].startswith("# "):
+        lines = lines[1:]
+    out = []
+    for line in lines:
+        if line.startswith("!["):
+            continue
+        heading = HEADING.match(line)
+        out.append(f"**{heading.group(2)}**" if heading else line)
+    return out
 
-    The folder's ``run.md`` (what the example scripts write, which holds its tables) is included without its own ``#``
-    title, its ``##`` headings one level below the section's (a folder without one: each markdown file); its plots
-    follow as figures with a caption each and its data files as download links. Anything else (``model.zip``) is left
-    out.
+
+def _collapsed(summary: str, body: list[str]) -> list[str]:
+    # MyST passes the HTML through; the blank lines let the markdown between the tags be parsed as markdown
+    return ["<details>", f"<summary>{summary}</summary>", "", *body, "", "</details>", ""]
+
+
+def _results_folder(folder: Path, section: str, placed_images: set[str]) -> list[str]:
+    """MyST for one ``docs/results/<run>/`` folder, under the heading ``section`` that ``results.md`` writes.
+
+    The folder's report (``run.md``, which holds its tables; a folder without one: each markdown file) and its plots
+    (a figure each, captioned with what it shows and from which run) are collapsed sections, so that the page reads
+    as the claims and the text of ``results.md``; the data files are download links. Anything else (``model.zip``) is
+    left out, and so are the images that ``results.md`` places itself.
     """
     files = sorted(p for p in folder.iterdir() if p.is_file())
     markdown = [p for p in files if p.suffix.lower() == ".md" and p.name.lower() != "readme.md"]
-    images = [p for p in files if p.suffix.lower() in IMAGE_SUFFIXES]
+    rel = folder.relative_to(DOCS_DIR).as_posix()
+    images = [p for p in files if p.suffix.lower() in IMAGE_SUFFIXES and f"{rel}/{p.name}" not in placed_images]
     data = [p for p in files if p.suffix.lower() in DATA_SUFFIXES]
     if folder / "run.md" in markdown:
         markdown = [folder / "run.md"]
-    rel = folder.relative_to(DOCS_DIR).as_posix()
     parts: list[str] = []
-    for path in markdown:
-        lines = path.read_text(encoding="utf-8").splitlines()
-        has_title = bool(lines) and lines[0].startswith("# ")
-        parts += [f"```{{include}} {path.relative_to(DOCS_DIR).as_posix()}"]
-        parts += [":start-line: 1"] if has_title else []
-        parts += [":heading-offset: 2", ":relative-images:", "```", ""]
-    for path in images:
-        caption = PLOT_CAPTIONS.get(path.stem, path.stem.replace("_", " ").capitalize() + ".")
-        parts += [f"```{{figure}} {rel}/{path.name}", f":alt: {path.stem}", "", caption, "```", ""]
     if data:
         parts += ["Data: " + ", ".join(f"{{download}}`{path.name} <{rel}/{path.name}>`" for path in data), ""]
+    body = [line for path in markdown for line in [*_report_text(path), ""]]
+    if body:
+        names = " and ".join(f"<code>{path.name}</code>" for path in markdown)
+        parts += _collapsed(f"Report and tables ({names} of <code>docs/results/{folder.name}/</code>)", body)
+    figures: list[str] = []
+    for path in images:
+        what = PLOT_CAPTIONS.get(path.stem, path.stem.replace("_", " ").capitalize() + ".")
+        caption = f"{what} Run: `docs/results/{folder.name}/` ({section})."
+        figures += [f"```{{figure}} {rel}/{path.name}", f":alt: {path.stem}", "", caption, "```", ""]
+    if figures:
+        parts += _collapsed(f"Figures ({len(images)})", figures)
     return parts
 
 
@@ -121,10 +158,13 @@ def _place_results(text: str) -> str:
             name,
             location="results",
         )
+    placed_images = set(FIGURE_DIRECTIVE.findall(text))
 
     def section(match: re.Match) -> str:
         folder = RESULTS_DIR / match.group(1)
-        return "\n".join(_results_folder(folder)) if folder.is_dir() else ""
+        headings = HEADING.findall(text[: match.start()])
+        title = headings[-1][1] if headings else folder.name
+        return "\n".join(_results_folder(folder, title, placed_images)) if folder.is_dir() else ""
 
     return RESULTS_MARKER.sub(section, text)
 

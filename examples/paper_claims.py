@@ -6,7 +6,8 @@ intervals (the sweep's aggregation), and whether the target is met, for each act
 default sampled actions first (the paper's protocol, Sec. III-D: commands are sampled from the Gaussian policy at
 execution), then mean actions. A mode the sweep evaluated in is read from its ``scores.csv``; another mode is
 measured here on the sweep's saved models, in the same cells, on the same held-out episode seeds, and its scores are
-written as ``scores_<mode>.csv`` in ``--output`` (reused on the next call). Nothing is tuned here.
+written as ``scores_<mode>.csv`` in ``--output`` (reused on the next call). One figure per claim
+(``claim_<k>_<name>.png``: the cells the claim compares, with their intervals). Nothing is tuned here.
 
     python examples/paper_claims.py --sweep runs/sweeps/coordination --burst-cells table1=10 burst30=30
 
@@ -30,6 +31,7 @@ import pandas as pd
 
 from sb3_latentswarm.evaluation import seed_range, to_markdown
 from sb3_latentswarm.experiments.aggregate import aggregate_scores
+from sb3_latentswarm.experiments.report import plot_cells
 
 ACTION_MODES = ("sampled", "mean")
 """``--actions`` choices; ``deterministic`` of ``evaluate`` is ``mode == "mean"``."""
@@ -155,6 +157,54 @@ def evaluate_sweep(sweep: Path, spec: dict, mode: str) -> pd.DataFrame:
     return run_scores(pd.concat(frames, ignore_index=True), [*CELL_COLUMNS, "variant", "train_seed", "trial_id"])
 
 
+def claim_figures(
+    scores: pd.DataFrame, base_cell: str, burst_cells: dict[str, float], p_fail_cells: list[str], output: Path
+) -> list[Path]:
+    """One figure per claim, ``claim_<k>_<name>.png`` in ``output``, from the same cells as :func:`check_claims`."""
+    aggregate = Cells(scores).table.reset_index()
+    present = set(map(tuple, aggregate[["variant", "eval_set", "condition"]].to_numpy()))
+
+    def cell(label: str, variant: str, eval_set: str, condition: str) -> list[tuple[str, dict[str, object]]]:
+        selection = {"variant": variant, "eval_set": eval_set, "condition": condition}
+        return [(label, selection)] if (variant, eval_set, condition) in present else []
+
+    figures = {
+        "claim_1_message_free_learners": dict(
+            cells=cell("proposed, with links", "proposed", base_cell, "proposed")
+            + cell("no_comm learner (trained without links)", "no_comm", base_cell, "no_comm")
+            + cell("independent RecurrentPPO", "independent", base_cell, "proposed"),
+            title="Claim 1: the proposed learner against the message-free learners",
+        ),
+        "claim_2_full_comm": dict(
+            cells=[c for condition in ("proposed", "full_comm", "full_comm_in_range")
+                   for c in cell(condition.replace("_", " "), "proposed", base_cell, condition)],
+            title="Claim 2: the proposed model with every link forced up",
+        ),
+        "claim_3_bursty_outages": dict(
+            cells=[c for name, length in burst_cells.items() for condition in ("proposed", "no_predictor", "no_memory")
+                   for c in cell(f"{condition.replace('_', ' ')}, mean outage {length:g}", "proposed", name, condition)],
+            title="Claim 3: predictor and memory under bursty outages",
+        ),
+        "claim_4_p_fail": dict(
+            cells=[c for name in p_fail_cells for c in cell(name.replace("=", " = "), "proposed", name, "proposed")],
+            title="Claim 4: the proposed model's coverage across p_f",
+        ),
+        "claim_5_collisions": dict(
+            cells=cell("proposed", "proposed", base_cell, "proposed")
+            + cell("no_comm learner (own condition)", "no_comm", base_cell, "no_comm")
+            + cell("independent RecurrentPPO", "independent", base_cell, "proposed"),
+            title="Claim 5: collisions per episode",
+            metric="collisions",
+            reference=(PAPER_COLLISIONS, f"paper: {PAPER_COLLISIONS}"),
+        ),
+    }
+    paths = []
+    for name, figure in figures.items():
+        if figure["cells"]:
+            paths.append(plot_cells(aggregate, path=output / f"{name}.png", **figure))
+    return paths
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sweep", required=True, help="a sweep output folder (with scores.csv and sweep.json)")
@@ -180,7 +230,7 @@ def main() -> None:
     output.mkdir(parents=True, exist_ok=True)
     seeds = (f"episode {seed_range(spec['eval_seed'], spec['eval_episodes'])}" if "eval_seed" in spec
              else "the sweep's episode seeds")
-    tables, sections = [], []
+    tables, sections, first_scores = [], [], None
     for mode in dict.fromkeys(args.actions):  # in the given order, each once
         if mode == sweep_mode(spec):
             scores, source = pd.read_csv(sweep / "scores.csv"), "the sweep's `scores.csv`"
@@ -189,6 +239,7 @@ def main() -> None:
             if not path.exists():
                 evaluate_sweep(sweep, spec, mode).to_csv(path, index=False)
             scores, source = pd.read_csv(path), f"`{path.name}`, measured by this script on the sweep's models"
+        first_scores = scores if first_scores is None else first_scores
         table = pd.DataFrame(check_claims(scores, args.base_cell, burst_cells, p_fail_cells))
         table.insert(0, "actions", mode)
         tables.append(table)
@@ -202,7 +253,9 @@ def main() -> None:
               "intervals.\n\n")
     markdown = header + "\n".join(sections)
     (output / "claims.md").write_text(markdown)
+    figures = claim_figures(first_scores, args.base_cell, burst_cells, p_fail_cells, output)  # the first mode's cells
     print(markdown)
+    print("Figures: " + ", ".join(str(path) for path in figures))
 
 
 if __name__ == "__main__":

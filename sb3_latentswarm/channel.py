@@ -264,8 +264,11 @@ class A2AChannel:
             if self.link_mode == "full":
                 return np.broadcast_to(self._offdiag_mask(n), pos.shape[:-1] + (n,)).copy()
             if self.link_mode == "full_in_range":
+                assert self.link_range is not None  # set in __init__ for this link mode
                 return (squared_distances(pos) <= self.link_range**2) & self._offdiag_mask(n)
             return np.zeros(pos.shape[:-1] + (n,), dtype=bool)
+        if rng is None:
+            raise ValueError(f"link_mode {self.link_mode!r} draws the channel: rng must be a numpy Generator, got None")
         normals = rng.standard_normal(pos.shape[:-1] + (n, 2))
         uniforms = rng.random(pos.shape[:-1] + (n + 1,))
         return self.links_from_variates(pos, normals, uniforms, xi_state)

@@ -15,10 +15,12 @@ import hashlib
 import json
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from sb3_latentswarm.presets import PRESETS, Preset, get_preset, override_targets
+from sb3_latentswarm.version import __version__
 
 
 def _literal(raw: str) -> Any:
@@ -258,7 +260,12 @@ def command_train(args: argparse.Namespace) -> int:
     if state:
         print(f"Resuming {latest} at {model.num_timesteps:,} of {total:,} agent-steps")
     else:
-        print(f"Training preset '{preset.name}' ({preset.description}) for {total:,} agent-steps, seed {args.seed}")
+        overrides = f" with {' '.join(args.set)}" if args.set else ""
+        updates = -(-total // (model.n_steps * env.num_envs))
+        print(
+            f"Training preset '{preset.name}'{overrides} for {total:,} agent-steps: {preset.n_envs} swarms of "
+            f"{preset.config.n_agents}, n_steps {model.n_steps}, {updates} updates, seed {args.seed}"
+        )
     print(f"Checkpoints every {save_freq:,} agent-steps in {checkpoint_dir} (keeping {args.keep_checkpoints})")
     start = time.perf_counter()
     with StopOnSignal() as stop:
@@ -558,9 +565,9 @@ def _overrides_of(option: str, pairs: list[str]) -> dict[str, Any]:
         raise ValueError(str(error).replace("--set", option, 1)) from None
 
 
-def _parse_grid(pairs: list[str]) -> dict[str, list[Any]]:
+def _parse_grid(pairs: list[str]) -> dict[str, Sequence[Any]]:
     """``["p_fail=0.1,0.3"]`` -> ``{"p_fail": [0.1, 0.3]}`` (values typed like ``--set``'s)."""
-    grid: dict[str, list[Any]] = {}
+    grid: dict[str, Sequence[Any]] = {}
     for pair in pairs:
         name, _, raw = pair.partition("=")
         if not raw:
@@ -618,6 +625,7 @@ def command_sweep(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sb3-latentswarm", description="Train and evaluate latent-state UAV swarms.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     def add_common(p: argparse.ArgumentParser, default_preset: str | None) -> None:
@@ -636,8 +644,19 @@ def build_parser() -> argparse.ArgumentParser:
             "and for train LatentSwarmPPO / LatentSwarmPolicy arguments (learning_rate=1e-4, n_steps=100, "
             "latent_dim=32); values are Python literals, validated as in Python",
         )
-        p.add_argument("--seed", type=int, default=0)
-        p.add_argument("--device", default="auto")
+        p.add_argument(
+            "--seed",
+            type=int,
+            default=0,
+            help="random seed (default 0): for train, the model's seed and the env copies' (copy k gets SEED + k); for "
+            "evaluate and render, the episode seed the evaluation episodes start from",
+        )
+        p.add_argument(
+            "--device",
+            default="auto",
+            help="torch device of the model, as SB3 takes it: auto (default: CUDA if available, else CPU), cpu, cuda, "
+            "cuda:1",
+        )
         p.add_argument(
             "--threads",
             type=int,
@@ -702,7 +721,13 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--evaluate", action="store_true", help="evaluate all conditions and baselines afterwards")
     add_eval_seed(train)
     train.add_argument("--tensorboard", default=None, help="TensorBoard log folder")
-    train.add_argument("--verbose", type=int, default=0)
+    train.add_argument(
+        "--verbose",
+        type=int,
+        default=0,
+        choices=(0, 1, 2),
+        help="SB3's verbosity: 0 quiet (default), 1 the training log table every update, 2 also debug messages",
+    )
     train.add_argument(
         "--backend",
         default=None,
@@ -713,12 +738,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     evaluate = sub.add_parser("evaluate", help="evaluate a saved model on the five conditions of Table I")
     add_common(evaluate, None)
-    evaluate.add_argument("--model", required=True)
+    evaluate.add_argument("--model", required=True, help="a LatentSwarmPPO model.zip (e.g. runs/demo/model.zip)")
     add_trust_pickle(evaluate)
     evaluate.add_argument("--episodes", type=positive_int, default=None, help="episodes per row (default: the preset's)")
     add_eval_seed(evaluate)
     evaluate.add_argument("--p-fail-sweep", action="store_true", help="also run the p_f sweep of Table I (right)")
-    evaluate.add_argument("--no-baselines", action="store_true")
+    evaluate.add_argument(
+        "--no-baselines", action="store_true", help="skip the random, lawnmower and frontier planners (default: run them)"
+    )
     evaluate.add_argument(
         "--output",
         default=None,
@@ -731,9 +758,14 @@ def build_parser() -> argparse.ArgumentParser:
     add_common(render, None)
     render.add_argument("--model", default=None, help="saved model (default: random actions)")
     add_trust_pickle(render)
-    render.add_argument("--condition", default="proposed")
+    render.add_argument(
+        "--condition",
+        default="proposed",
+        help="test-time communication condition of sb3_latentswarm.evaluation.CONDITIONS (default proposed; also "
+        "full_comm, no_comm, no_predictor, no_memory, ...)",
+    )
     render.add_argument("--output", default="episode.gif", help="file ending in .gif or .mp4 (needs imageio-ffmpeg)")
-    render.add_argument("--fps", type=positive_int, default=10)
+    render.add_argument("--fps", type=positive_int, default=10, help="frames per second of the animation (default 10)")
     render.set_defaults(func=command_render)
 
     sweep = sub.add_parser("sweep", help="train seeds x variants (x a grid) on Ray Tune; across-seed intervals (extra sweep)")

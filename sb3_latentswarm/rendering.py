@@ -15,9 +15,10 @@ import numpy as np
 import torch as th
 
 from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.envs.swarm_recon import AGENT_COLOURS
 
 ANIMATION_FORMATS = (".gif", ".mp4")
-_TRAIL_COLOURS = np.array([[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189]], dtype=np.uint8)
+_TRAIL_COLOURS = AGENT_COLOURS.astype(np.uint8)  # the env's palette: a UAV's trail has the colour of its square
 
 
 def _episode(model, config: SwarmConfig, seed: int, condition: str, deterministic: bool, keep_frame):
@@ -213,13 +214,11 @@ def _check_animation_args(output: Path, fps: int, max_frames: int) -> None:
 
 def plot_trajectories(positions: np.ndarray, dropouts: np.ndarray, config: SwarmConfig, path: str | Path) -> Path:
     """Top view of the UAV paths over the arena; steps with some UAV in dropout are marked with crosses."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # no pyplot: the caller's matplotlib backend is left alone
 
     x_max, y_max = config.arena_size
-    fig, ax = plt.subplots(figsize=(5, 5))
+    fig = Figure(figsize=(5, 5))
+    ax = fig.subplots()
     for i in range(positions.shape[1]):
         ax.plot(positions[:, i, 0], positions[:, i, 1], lw=1.2, color=_TRAIL_COLOURS[i % len(_TRAIL_COLOURS)] / 255.0,
                 label=f"uav_{i}")
@@ -234,5 +233,4 @@ def plot_trajectories(positions: np.ndarray, dropouts: np.ndarray, config: Swarm
     ax.legend(loc="upper right", fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return Path(path)

@@ -34,6 +34,26 @@ def test_every_results_plot_has_a_caption():
     assert len(figures) == len(images) > 0
     assert all(caption.strip() for _, caption in figures)
     assert "{image}" not in page
+    # each caption says what the plot shows and from which run; no two captions alike
+    assert all("Run: `docs/results/" in caption for _, caption in figures)
+    assert len({caption for _, caption in figures}) == len(figures)
+
+
+def test_results_figures_are_legible_at_page_width():
+    from PIL import Image
+
+    for path in sorted((DOCS / "results").glob("*/*.png")):
+        width, height = Image.open(path).size
+        assert width <= 1600 and width <= 3.5 * height, f"{path.name}: {width} x {height} px"
+
+
+def test_results_page_keeps_long_reports_collapsed():
+    page = results_page()
+    # the folders' reports and plots sit in <details> blocks, so the page reads as its own text and the claims
+    folders = re.findall(r"^<!-- results-folder: ", (DOCS / "results.md").read_text(), re.MULTILINE)
+    assert page.count("<details>") == page.count("</details>") >= len(folders) > 0
+    outside = re.sub(r"<details>.*?</details>", "", page, flags=re.S)
+    assert outside.count("\n|") < 60  # table rows left open: the claims table and a few short ones
 
 
 def test_built_pages_are_offline_readable_and_show_no_inherited_torch_docstring(tmp_path):

@@ -592,13 +592,6 @@ def test_matplotlib_is_not_imported_by_the_env():
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
-def test_actor_keys_agree_with_the_policy_side():
-    from sb3_latentswarm.common.observations import ACTOR_KEYS
-    from sb3_latentswarm.envs.swarm_recon import ACTOR_OBS_KEYS
-
-    assert ACTOR_KEYS == ACTOR_OBS_KEYS
-
-
 def test_numpy_scalars_are_accepted_as_the_numbers_they_equal():
     config = SwarmConfig(n_agents=np.int64(3), grid_width=np.int32(20), p_fail=np.float32(0.5))
     assert config == SwarmConfig(n_agents=3, grid_width=20, p_fail=float(np.float32(0.5)))

@@ -197,6 +197,7 @@ def test_cli_unknown_preset_is_rejected(capsys):
     assert "invalid choice" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_continue_training_example_smoke(tmp_path):
     first = tmp_path / "first"
     assert main(["train", "--preset", "smoke", "--output", str(first), "--no-progress"]) == 0

@@ -177,6 +177,7 @@ def run_sweep_command(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
 
 
+@pytest.mark.slow
 def test_sweep_smoke_end_to_end_and_resume(tmp_path):
     output = tmp_path / "sweep"
     args = ("--preset", "smoke", "--seeds", "2", "--eval-episodes", "2", "--output", str(output), "--verbose", "0")

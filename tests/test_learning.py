@@ -1,6 +1,7 @@
 """A short, seeded learning check: LatentSwarmPPO beats a random policy on a small map (about a minute on 2 cores)."""
 
 import numpy as np
+import pytest
 import torch as th
 
 from sb3_latentswarm import LatentSwarmPPO, SwarmConfig
@@ -22,6 +23,7 @@ def mean_final_coverage(act, episodes=20, seed=1000):
     return float(np.mean(coverages))
 
 
+@pytest.mark.slow
 def test_trained_swarm_covers_more_than_random():
     th.set_num_threads(1)
     rng = np.random.default_rng(0)

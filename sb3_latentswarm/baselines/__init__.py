@@ -15,6 +15,9 @@ from sb3_latentswarm.baselines.planners import (
     SweepPlanner,
     WaypointState,
 )
+from sb3_latentswarm.common.threads import apply_default_torch_threads_once
+
+apply_default_torch_threads_once()
 
 __all__ = [
     "COORDINATED_PLANNERS",

@@ -24,8 +24,9 @@ serves any swarm size), hold the altitude at ``initial_altitude``, command no ya
 :meth:`LatentSwarmPolicy.predict`: ``predict`` returns it and takes it back at the next step; a NamedTuple of arrays
 whose leading dimension is the slot, reset where ``episode_start`` is 1.
 
-Positions are read from ``proprio``: ``x = proprio[0] * grid_width * cell_size``, and the UAV's cell is
-``floor(x / cell_size)`` as in the env.
+Positions and headings are read from ``proprio`` (e_t) with :func:`~sb3_latentswarm.common.observations.proprio_position`
+and :func:`~sb3_latentswarm.common.observations.proprio_heading`, the inverse of the env's normalization, and the
+UAV's cell is ``floor(x / cell_size)`` as in the env.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from sb3_latentswarm.common.observations import ACTOR_KEYS, as_vec_observation
+from sb3_latentswarm.common.observations import ACTOR_OBS_KEYS, as_vec_observation, proprio_heading, proprio_position
 from sb3_latentswarm.config import SwarmConfig
 
 __all__ = [
@@ -90,7 +91,7 @@ class _Planner(abc.ABC):
         :param deterministic: ignored (every planner's action is a deterministic function of its inputs)
         :return: actions in [-1, 1] of shape (n_slots, 4) and the new state
         """
-        observation, agent_names = as_vec_observation(observation, ACTOR_KEYS, type(self).__name__)
+        observation, agent_names = as_vec_observation(observation, ACTOR_OBS_KEYS, type(self).__name__)
         local_obs = np.asarray(observation["local_obs"])
         proprio = np.asarray(observation["proprio"], dtype=np.float64)
         link_row = np.asarray(observation["link_row"])
@@ -121,7 +122,7 @@ class _Planner(abc.ABC):
     def _positions(self, proprio: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Horizontal positions (n, 2) in metres and cells (n, 2) as (ix, iy), from e_t = [x/X, y/Y, ...]."""
         cfg = self.config
-        xy = proprio[:, :2] * (cfg.grid_width * cfg.cell_size, cfg.grid_height * cfg.cell_size)
+        xy = proprio_position(proprio, cfg)[:, :2]
         cells = np.floor(xy / cfg.cell_size).astype(np.intp)
         np.clip(cells, 0, (cfg.grid_width - 1, cfg.grid_height - 1), out=cells)
         return xy, cells
@@ -136,13 +137,13 @@ class _Planner(abc.ABC):
         if cfg.action_frame == "body":
             # the env rotates (forward, lateral) by the heading chi before the move: apply the inverse rotation,
             # scaled back into the box so that the direction is kept
-            chi = proprio[:, 6] * np.pi
+            chi = proprio_heading(proprio)
             cos, sin = np.cos(chi), np.sin(chi)
             vx, vy = actions[:, 0].copy(), actions[:, 1].copy()
             actions[:, 0], actions[:, 1] = vx * cos + vy * sin, -vx * sin + vy * cos
             actions[:, :2] /= np.maximum(np.abs(actions[:, :2]).max(-1, keepdims=True), 1.0)
         if cfg.vz_max > 0.0:
-            z = cfg.min_altitude + proprio[:, 2] * (cfg.max_altitude - cfg.min_altitude)
+            z = proprio_position(proprio, cfg)[:, 2]
             actions[:, 2] = np.clip((cfg.initial_altitude - z) / (cfg.vz_max * cfg.dt), -1.0, 1.0)
         return actions
 
@@ -432,16 +433,20 @@ class RandomStripPlanner(_WaypointPlanner):
 
     def _build_routes(self, n_agents: int) -> tuple[np.ndarray, np.ndarray]:
         strips = LawnmowerPlanner(self.config).routes(n_agents)
-        strip_orders = [[strips[0][i, v, : strips[1][i, v]].tolist() for v in range(4)] for i in range(n_agents)]
-        variants = []  # variant 4 k + v: strip k in order v, then strips k + 1, ... each entered at its nearest end
+        strip_orders: list[list[list[list[int]]]] = [
+            [strips[0][i, v, : strips[1][i, v]].tolist() for v in range(4)] for i in range(n_agents)
+        ]
+        # variant 4 k + v: strip k in order v, then strips k + 1, ... each entered at its nearest end
+        variants: list[list[tuple[int, int]]] = []
         for k in range(n_agents):
             for v in range(4):
                 route = list(strip_orders[k][v])
                 for step in range(1, n_agents):
                     following = strip_orders[(k + step) % n_agents]
                     last = np.array(route[-1])
-                    route += min(following, key=lambda order: np.abs(np.array(order[0]) - last).max())
-                variants.append([tuple(p) for p in route])
+                    nearest = min(following, key=lambda order: np.abs(np.array(order[0]) - last).max())
+                    route += nearest
+                variants.append([(x, y) for x, y in route])
         return _route_table([variants] * n_agents)
 
     def _choose_routes(self, first: np.ndarray, cells: np.ndarray, agent: np.ndarray, proprio: np.ndarray) -> np.ndarray:

@@ -23,10 +23,26 @@ THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
 def apply_default_torch_threads() -> int:
     """Set torch to :data:`DEFAULT_TORCH_THREADS` threads unless one of :data:`THREAD_VARIABLES` is set.
 
-    Called once, when ``sb3_latentswarm`` is imported; ``torch.set_num_threads(n)`` after the import overrides it.
+    :func:`apply_default_torch_threads_once` calls it when the package first loads its torch-using code;
+    ``torch.set_num_threads(n)`` after that overrides it.
 
     :return: the number of threads torch now uses
     """
     if not any(os.environ.get(name) for name in THREAD_VARIABLES):
         th.set_num_threads(DEFAULT_TORCH_THREADS)
     return th.get_num_threads()
+
+
+_applied = False
+
+
+def apply_default_torch_threads_once() -> None:
+    """:func:`apply_default_torch_threads` the first time it is called in a process, nothing afterwards.
+
+    Called by ``import sb3_latentswarm`` when torch is already loaded, else by the subpackages that load torch
+    (``latent_ppo``, ``envs``, ``baselines``), so that a later ``torch.set_num_threads(n)`` of the user's is kept.
+    """
+    global _applied
+    if not _applied:
+        _applied = True
+        apply_default_torch_threads()

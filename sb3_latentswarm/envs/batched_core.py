@@ -38,6 +38,17 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 
 from sb3_latentswarm.channel import XI_UNSET, A2AChannel, squared_distances
+from sb3_latentswarm.common.observations import (
+    ACTOR_OBS_KEYS,
+    OBS_KEYS,
+    PROPRIO_DIM,
+    PROPRIO_ENERGY,
+    PROPRIO_HEADING,
+    PROPRIO_POSITION,
+    PROPRIO_VELOCITY,
+    STATE_OBS_KEYS,
+    proprio_normalization,
+)
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.envs.start_positions import sample_start_positions
 
@@ -54,14 +65,6 @@ __all__ = [
     "agent_observation_space",
 ]
 
-#: Observation keys, in the order of the ``Dict`` space.
-OBS_KEYS = ("local_obs", "proprio", "link_row", "swarm_proprio", "global_map")
-#: Keys an actor may use at execution time (decentralized).
-ACTOR_OBS_KEYS = ("local_obs", "proprio", "link_row")
-#: Keys that form the global state s_t (centralized critic and map loss only).
-STATE_OBS_KEYS = ("swarm_proprio", "global_map")
-#: Length of the proprioceptive vector e_t.
-PROPRIO_DIM = 8
 #: Actions may exceed [-1, 1] by this much (float32 rounding) before they are rejected; they are clipped.
 ACTION_TOLERANCE = 1e-6
 #: Relative tolerance of the energy-depletion test ``b_t <= eps * b_0``.
@@ -178,11 +181,7 @@ class SwarmBatch:
         self._pos_low = np.array([0.0, 0.0, config.min_altitude])
         self._pos_high = np.array([x_max, y_max, config.max_altitude])
         self._vel_scale = np.array([config.v_max, config.v_max, config.vz_max])
-        # e_t = (kinematic state - offset) * scale, with scale 0 where the range is 0 (z_max = z_min, vz_max = 0)
-        ranges = np.concatenate([self._pos_high - self._pos_low, self._vel_scale, [math.pi, config.initial_energy]])
-        self._proprio_scale = np.divide(1.0, ranges, out=np.zeros(PROPRIO_DIM), where=ranges > 0)
-        self._proprio_offset = np.zeros(PROPRIO_DIM)
-        self._proprio_offset[2] = config.min_altitude
+        self._proprio_offset, self._proprio_scale = proprio_normalization(config)  # e_t = (state - offset) * scale
         self._noise_std = config.actuation_noise_std * self._vel_scale
         self._yaw_scale = config.yaw_rate_max * config.dt
         self._body_frame = config.action_frame == "body"
@@ -253,7 +252,7 @@ class SwarmBatch:
     @property
     def positions(self) -> np.ndarray:
         """UAV positions in metres, (B, N, 3) (a copy)."""
-        return self.kinematics[:, :, :3].copy()
+        return self.kinematics[:, :, PROPRIO_POSITION].copy()
 
     @property
     def links(self) -> np.ndarray:
@@ -356,9 +355,9 @@ class SwarmBatch:
         self._map[idx] = -1
         self._covered[idx] = self._uncovered
         kinematics = np.zeros((len(listed), n, PROPRIO_DIM))
-        kinematics[:, :, :3] = start if positions is None else positions
-        kinematics[:, :, 6] = heading
-        kinematics[:, :, 7] = cfg.initial_energy
+        kinematics[:, :, PROPRIO_POSITION] = start if positions is None else positions
+        kinematics[:, :, PROPRIO_HEADING] = heading
+        kinematics[:, :, PROPRIO_ENERGY] = cfg.initial_energy
         self.kinematics[idx] = kinematics
 
         self.t[idx] = 0
@@ -389,7 +388,7 @@ class SwarmBatch:
         # Transition T: v = command * (v_max, v_max, vz_max) + noise, p += v dt (clipped), chi += yaw dt (wrapped)
         vel = command[:, :, :3] * self._vel_scale  # (B, N, 3)
         if self._body_frame:
-            heading = kinematics[:, :, 6]
+            heading = kinematics[:, :, PROPRIO_HEADING]
             cos, sin = np.cos(heading), np.sin(heading)
             forward, lateral = vel[:, :, 0].copy(), vel[:, :, 1].copy()
             vel[:, :, 0] = forward * cos - lateral * sin
@@ -399,18 +398,18 @@ class SwarmBatch:
             for swarm, rng in enumerate(self.rngs):
                 rng.standard_normal(out=noise[swarm])
             vel += self._noise_std * noise
-        kinematics[:, :, 3:6] = vel
-        pos = kinematics[:, :, :3]
+        kinematics[:, :, PROPRIO_VELOCITY] = vel
+        pos = kinematics[:, :, PROPRIO_POSITION]  # views: updated in place
         pos += vel * cfg.dt
         np.maximum(pos, self._pos_low, out=pos)  # ufuncs: np.clip costs more per call on small arrays
         np.minimum(pos, self._pos_high, out=pos)
-        heading = kinematics[:, :, 6]
+        heading = kinematics[:, :, PROPRIO_HEADING]
         heading += command[:, :, 3] * self._yaw_scale
         heading += math.pi  # wrap to [-pi, pi)
         np.remainder(heading, 2.0 * math.pi, out=heading)
         heading -= math.pi
         energy = cfg.initial_energy - cfg.energy_decay * self.t  # b_t = b_0 - kappa t, from t (no accumulated rounding)
-        kinematics[:, :, 7] = np.maximum(energy, 0.0)[:, None]
+        kinematics[:, :, PROPRIO_ENERGY] = np.maximum(energy, 0.0)[:, None]
 
         readings, n_new, n_redundant = self._sense(ALL)
         # Eq. r_cov: r_cov = |C(M_hat_t)| - |C(M_hat_{t-1})| - c
@@ -446,7 +445,7 @@ class SwarmBatch:
 
         :param positions: shape (N, 3), metres, inside the arena and the altitude bounds.
         """
-        self.kinematics[swarm, :, :3] = self.check_positions(positions)
+        self.kinematics[swarm, :, PROPRIO_POSITION] = self.check_positions(positions)
 
     # ------------------------------------------------------------------ input checks
     def check_positions(self, positions: Any, n_swarms: int | None = None) -> np.ndarray:
@@ -513,7 +512,7 @@ class SwarmBatch:
 
         :param distances2: their squared pairwise distances, if computed already.
         """
-        pos = self.kinematics[idx, :, :3]
+        pos = self.kinematics[idx, :, PROPRIO_POSITION]
         if self.channel.link_mode == "channel":
             n = self.n_agents
             normals = np.empty((len(pos), n, n, 2))

@@ -349,7 +349,9 @@ def parallel_env(**kwargs: Any) -> SwarmReconEnv:
 
 
 #: Colours of the UAVs in :func:`render_frame` (RGB), cycled when N is larger.
-_AGENT_COLOURS = np.array(
+#: The colour (RGB 0-255) of UAV ``i``, ``AGENT_COLOURS[i % 7]``: its square, footprint tint, trail and trajectory
+#: (``sb3_latentswarm.rendering``), one palette for every picture of a swarm (matplotlib's tab10 order).
+AGENT_COLOURS = np.array(
     [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189], [140, 86, 75], [227, 119, 194]],
     dtype=np.float64,
 )
@@ -367,7 +369,7 @@ def render_frame(core: SwarmBatch, swarm: int) -> np.ndarray:
     colours[estimate == 0] = (245, 245, 245)
     colours[estimate == 1] = (20, 20, 20)
     colours[(estimate == -1) & (truth == 1)] = (110, 40, 40)
-    agent_colours = _AGENT_COLOURS[np.arange(core.n_agents) % len(_AGENT_COLOURS)]
+    agent_colours = AGENT_COLOURS[np.arange(core.n_agents) % len(AGENT_COLOURS)]
     r = config.sensor_range
     rows_padded, cols_padded = np.divmod(core.footprint[swarm], width + 2 * r)  # padded (row, col) per entry
     for i in range(core.n_agents):

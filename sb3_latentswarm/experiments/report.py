@@ -6,7 +6,7 @@
 * ``scores.csv``: one row per trial and cell, the run's scores (:data:`~.trial.SCORE_METRICS`);
 * ``aggregate.csv`` / ``aggregate.md``: per (grid point, variant, cell) and metric, across training seeds, the IQM and
   the mean, each with its 95 % stratified-bootstrap interval (:mod:`.aggregate`);
-* ``intervals_<metric>.png``: bars (IQM) with interval whiskers per cell and variant;
+* ``intervals_<metric>.png``: bars (IQM) with interval whiskers per cell and variant, a panel per evaluation set;
 * ``learning_curves.png``: coverage and episode return during training, mean across seeds with a 95 % band;
 * ``run.md``: command, commit, machines, budget and seeds, then the tables.
 """
@@ -120,48 +120,125 @@ def aggregate_markdown(aggregate: pd.DataFrame, group_columns: list[str]) -> str
     return "\n".join(sections)
 
 
-def _plot_intervals(aggregate: pd.DataFrame, group_columns: list[str], output: Path) -> list[str]:
-    import matplotlib
+def _interval_panels(rows: pd.DataFrame, cell_columns: list[str]) -> list[tuple[str, list[tuple[str, pd.DataFrame]]]]:
+    """``(title, [(x label, rows of that cell), ...])`` per panel: one panel per evaluation set, and the sets of a
+    single cell (a p_f sweep's points) side by side in one panel."""
+    panel_columns = [c for c in cell_columns if c == "eval_set"] or cell_columns[:1]
+    other = [c for c in cell_columns if c not in panel_columns]
+    panels, singles = [], []
+    for panel, panel_rows in rows.groupby(panel_columns, sort=False):
+        name = ", ".join(map(str, panel if isinstance(panel, tuple) else (panel,)))
+        cells = [(" ".join(map(str, cell if isinstance(cell, tuple) else (cell,))).replace("_", " "), cell_rows)
+                 for cell, cell_rows in panel_rows.groupby(other, sort=False)] if other else [(name, panel_rows)]
+        if len(cells) == 1:
+            singles.append((f"{name}: {cells[0][0]}" if other else name, cells[0][1]))
+        else:
+            panels.append((name, cells))
+    if singles:
+        panels.append(("one-cell evaluation sets", singles))
+    return panels
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+
+def plot_intervals(aggregate: pd.DataFrame, group_columns: list[str], output: Path) -> list[str]:
+    """``intervals_<metric>.png``: a panel per evaluation set (two a row; the one-cell sets share a panel), a bar
+    per condition and variant with its interval."""
+    from matplotlib.figure import Figure  # no pyplot: the caller's matplotlib backend is left alone
 
     cell_columns = [c for c in group_columns if c != "variant"]
     names = []
     for metric, rows in aggregate.groupby("metric", sort=False):
-        cells = list(dict.fromkeys(map(tuple, rows[cell_columns].astype(str).to_numpy())))
         variants = list(dict.fromkeys(rows["variant"]))
+        panels = _interval_panels(rows, cell_columns)
+        n_cols = 2 if len(panels) > 2 else 1  # two panels a row, stacked when there are only two
+        n_rows = -(-len(panels) // n_cols)
+        figure = Figure(figsize=(6.0 * n_cols, 3.4 * n_rows))
+        axes = figure.subplots(n_rows, n_cols, squeeze=False)
         width = 0.8 / len(variants)
-        figure, axis = plt.subplots(figsize=(max(6.0, 0.9 * len(cells) * len(variants) ** 0.5), 4.0))
-        for k, variant in enumerate(variants):
-            by_cell = {tuple(map(str, r[cell_columns])): r for _, r in rows[rows["variant"] == variant].iterrows()}
-            x, height, low, high = [], [], [], []
-            for i, cell in enumerate(cells):
-                if cell in by_cell and not np.isnan(by_cell[cell]["iqm"]):
-                    r = by_cell[cell]
-                    x.append(i + (k - (len(variants) - 1) / 2) * width)
-                    height.append(r["iqm"])
-                    low.append(r["iqm"] - r["iqm_low"])
-                    high.append(r["iqm_high"] - r["iqm"])
-            axis.bar(x, height, width, yerr=[low, high], capsize=3, label=variant)
-        axis.set_xticks(range(len(cells)), ["\n".join(c for c in cell if c != "nan") for cell in cells], fontsize=7)
-        axis.set_ylabel(f"{METRIC_LABELS.get(metric, metric)}, IQM")
-        axis.set_title("IQM across training seeds, 95 % stratified-bootstrap CI")
-        axis.legend(fontsize=8)
-        figure.tight_layout()
+        for axis, (title, cells) in zip(axes.flat, panels):
+            for k, variant in enumerate(variants):
+                x, height, low, high = [], [], [], []
+                for i, (_, cell_rows) in enumerate(cells):
+                    found = cell_rows[cell_rows["variant"] == variant]
+                    if len(found) and not np.isnan(found["iqm"].iloc[0]):
+                        r = found.iloc[0]
+                        x.append(i + (k - (len(variants) - 1) / 2) * width)
+                        height.append(r["iqm"])
+                        low.append(r["iqm"] - r["iqm_low"])
+                        high.append(r["iqm_high"] - r["iqm"])
+                axis.bar(x, height, width, yerr=[low, high], capsize=2, label=variant, color=f"C{k}")
+            axis.set_xticks(range(len(cells)), [label for label, _ in cells], fontsize=10, rotation=20, ha="right")
+            axis.set_title(title, fontsize=12)
+            axis.tick_params(axis="y", labelsize=10)
+        for axis in axes.flat[len(panels):]:
+            axis.set_visible(False)
+        handles, labels = axes[0, 0].get_legend_handles_labels()
+        figure.legend(handles, labels, loc="upper right", ncol=len(variants), fontsize=11, frameon=False)
+        figure.supylabel(f"{METRIC_LABELS.get(metric, metric)}, IQM across training seeds", fontsize=12)
+        figure.suptitle("IQM across training seeds, 95 % stratified-bootstrap CIs", fontsize=12, x=0.02, ha="left")
+        figure.tight_layout(rect=(0, 0, 1, 1 - 0.4 / (3.4 * n_rows)))
         name = f"intervals_{metric}.png"
         with atomic_path(output / name) as path:
-            figure.savefig(path, dpi=120)
-        plt.close(figure)
+            figure.savefig(path, dpi=100)
         names.append(name)
     return names
 
 
-def _plot_learning_curves(progress: pd.DataFrame, grid_columns: list[str], output: Path) -> str | None:
-    import matplotlib
+def plot_cells(
+    aggregate: pd.DataFrame,
+    cells: list[tuple[str, dict[str, object]]],
+    path: str | Path,
+    metric: str = "coverage",
+    title: str = "",
+    reference: tuple[float, str] | None = None,
+) -> Path:
+    """A row per chosen cell of an aggregate table: the across-seed mean (point) with its 95 % interval (whiskers).
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    :param aggregate: the long table of :func:`~.aggregate.aggregate_scores` (``aggregate.csv``)
+    :param cells: ``(label, {column: value, ...})`` per bar, top to bottom; each must select exactly one row of
+        ``metric`` (e.g. ``{"eval_set": "table1", "condition": "no_comm", "variant": "proposed"}``)
+    :param path: the PNG to write (6.4 in wide at 120 dpi: legible at a documentation page's width)
+    :param reference: ``(value, label)`` of a vertical dashed line (a target or the paper's number)
+    :raises ValueError: when a cell selects no row or several
+    """
+    from matplotlib.figure import Figure  # no pyplot: the caller's matplotlib backend is left alone
+
+    rows = []
+    for label, selection in cells:
+        mask = aggregate["metric"] == metric
+        for column, value in selection.items():
+            mask &= aggregate[column].astype(str) == str(value)
+        if mask.sum() != 1:
+            raise ValueError(f"cell {label!r} ({selection}) selects {int(mask.sum())} rows of {metric}, expected 1")
+        rows.append(aggregate[mask].iloc[0])
+    means = np.array([r["mean"] for r in rows])
+    errors = np.array([[r["mean"] - r["mean_low"], r["mean_high"] - r["mean"]] for r in rows]).T
+    figure = Figure(figsize=(6.4, 0.42 * len(rows) + 1.0))
+    axis = figure.subplots()
+    y = np.arange(len(rows))[::-1]
+    for k, (yi, value) in enumerate(zip(y, means)):  # a point with its interval: no bar to cut at an axis limit
+        axis.errorbar(value, yi, xerr=errors[:, k : k + 1], fmt="o", ms=6, capsize=4, color=f"C{k}")
+        axis.text(value + errors[1, k], yi + 0.12, f"  {value:.1f}", va="bottom", ha="left", fontsize=8)
+    axis.set_yticks(y, [label for label, _ in cells], fontsize=9)
+    axis.grid(axis="x", alpha=0.3)
+    if reference is not None:
+        axis.axvline(reference[0], color="black", ls="--", lw=1)
+        axis.text(reference[0], y.max() + 0.6, f" {reference[1]}", fontsize=8, va="bottom")
+    low = float(np.nanmin([r["mean_low"] for r in rows]))
+    high = float(np.nanmax([r["mean_high"] for r in rows] + ([reference[0]] if reference else [])))
+    margin = 0.12 * (high - low) + 0.3
+    axis.set_xlim(max(0.0, low - margin), high + 2 * margin)
+    axis.set_ylim(-0.7, len(rows) - 0.1 + (0.6 if reference else 0.0))
+    axis.set_xlabel(f"{METRIC_LABELS.get(metric, metric)}: mean across training seeds, 95 % CI", fontsize=9)
+    axis.tick_params(axis="x", labelsize=8)
+    if title:
+        figure.suptitle(title, fontsize=10)
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    return Path(path)
+
+
+def _plot_learning_curves(progress: pd.DataFrame, grid_columns: list[str], output: Path) -> str | None:
+    from matplotlib.figure import Figure  # no pyplot: the caller's matplotlib backend is left alone
 
     if progress.empty:
         return None
@@ -169,7 +246,8 @@ def _plot_learning_curves(progress: pd.DataFrame, grid_columns: list[str], outpu
     metrics = [m for m in ("coverage", "episode_reward") if progress[m].notna().any()]
     if not metrics:
         return None
-    figure, axes = plt.subplots(1, len(metrics), figsize=(5.5 * len(metrics), 3.8), squeeze=False)
+    figure = Figure(figsize=(5.5 * len(metrics), 3.8))
+    axes = figure.subplots(1, len(metrics), squeeze=False)
     for axis, metric in zip(axes[0], metrics):
         for group, runs in progress.groupby([*grid_columns, "variant"], sort=False):
             group = group if isinstance(group, tuple) else (group,)
@@ -188,7 +266,6 @@ def _plot_learning_curves(progress: pd.DataFrame, grid_columns: list[str], outpu
     figure.tight_layout()
     with atomic_path(output / "learning_curves.png") as path:
         figure.savefig(path, dpi=120)
-    plt.close(figure)
     return "learning_curves.png"
 
 
@@ -242,7 +319,7 @@ def write_report(output: str | Path, commit: str | None = None) -> pd.DataFrame:
         aggregate.to_csv(path, index=False)
     markdown = aggregate_markdown(aggregate, group_columns)
     write_text(output / "aggregate.md", markdown)
-    figures = _plot_intervals(aggregate, group_columns, output)
+    figures = plot_intervals(aggregate, group_columns, output)
     curves = _plot_learning_curves(_read_trials(output, ids, "progress.csv"), grid_columns, output)
     if curves:
         figures.append(curves)

@@ -38,13 +38,13 @@ from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 from sb3_latentswarm.common.atomic import atomic_path
 from sb3_latentswarm.common.buffers import SwarmRolloutBuffer
 from sb3_latentswarm.common.checks import check_bool, check_choice, check_float, check_int
+from sb3_latentswarm.common.observations import STATE_OBS_KEYS
 from sb3_latentswarm.common.schedules import paper_learning_rate
 from sb3_latentswarm.common.serialization import UnsafeModelFileError, load_plain, read_data, save_plain
 from sb3_latentswarm.common.type_aliases import LatentState
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.envs.vec_env import check_vec_normalize
 from sb3_latentswarm.latent_ppo.policies import (
-    CRITIC_KEYS,
     NEW_POLICY_KWARGS,
     LatentSwarmPolicy,
     SequenceEvaluation,
@@ -65,12 +65,12 @@ PAPER_LEARNING_RATE = paper_learning_rate()
 """1e-4 for the first 1000 of 1600 updates, 1e-5 after (Sec. IV)."""
 
 N_AGENT_KEYS = ("link_row", "swarm_proprio")
+"""Observation keys whose shape depends on the number of agents; the policy's parameters do not."""
 
 VALUE_LOSSES = ("mse", "huber")
 GRAD_CLIP_MODES = ("global", "per_group")
 LOSS_TERMS = ("policy", "value", "entropy", "map", "pred")
 """The terms of the joint loss, as named in ``train/grad_norm_<term>``."""
-"""Observation keys whose shape depends on the number of agents; the policy's parameters do not."""
 
 
 def auxiliary_losses(evaluation: SequenceEvaluation, global_map: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
@@ -440,7 +440,7 @@ class LatentSwarmPPO(RecurrentPPO):
             gamma=self.gamma,
             gae_lambda=self.gae_lambda,
             n_envs=self.n_envs,
-            swarm_keys=CRITIC_KEYS,  # the global state s_t, the same for every agent of a swarm: stored once per swarm
+            swarm_keys=STATE_OBS_KEYS,  # the global state s_t, the same for every agent of a swarm: stored once per swarm
         )
 
     def set_env(self, env: GymEnv, force_reset: bool = True) -> None:

@@ -20,6 +20,7 @@ The actor side reads only ``local_obs``, ``proprio`` and ``link_row``; the criti
 
 from __future__ import annotations
 
+import inspect
 import math
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -34,13 +35,17 @@ from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 
 from sb3_latentswarm.common.checks import check_choice, check_float
-from sb3_latentswarm.common.observations import ACTOR_KEYS, as_vec_observation
+from sb3_latentswarm.common.observations import (
+    ACTOR_OBS_KEYS,
+    POSITION_DIMS,
+    PROPRIO_POSITION,
+    STATE_OBS_KEYS,
+    as_vec_observation,
+)
 from sb3_latentswarm.common.type_aliases import LatentState
 from sb3_latentswarm.common.value_norm import ValueNorm
 
-CRITIC_KEYS = ("swarm_proprio", "global_map")
-REQUIRED_KEYS = ACTOR_KEYS + CRITIC_KEYS
-POSITION_DIMS = 3
+REQUIRED_KEYS = ACTOR_OBS_KEYS + STATE_OBS_KEYS
 """The first three entries of the proprioceptive state e_t are the (normalized) position p_t."""
 
 ACTION_DISTRIBUTIONS = ("gaussian", "squashed_gaussian")
@@ -234,7 +239,7 @@ class LatentSwarmPolicy(BasePolicy):
             # RecurrentPPO passes use_sde; anything else is a typo the user should hear about
             unexpected = set(unused_kwargs) - {"use_sde"}
             if unexpected:
-                raise TypeError(f"LatentSwarmPolicy got unexpected keyword argument(s): {sorted(unexpected)}")
+                raise TypeError(_unexpected_kwargs_message(unexpected))
             if unused_kwargs.get("use_sde"):
                 raise ValueError("LatentSwarmPolicy does not support use_sde=True")
         check_observation_space(observation_space)
@@ -458,7 +463,7 @@ class LatentSwarmPolicy(BasePolicy):
         # Sec. III-A, asymmetric update: mu_t = E_phi(mu_{t-1}, o_t, p_t, m^mu_t), m^mu_t = 0 when nothing arrived
         # (received_message is already zero there, so the predictor never reaches the map state)
         map_message = received_message[:, : self.map_dim]
-        position = proprio[:, :POSITION_DIMS]
+        position = proprio[:, PROPRIO_POSITION]
         map_state = self.map_encoder(th.cat([local_obs, position, map_message], dim=-1), map_prev)
 
         # Sec. III-A: tau_t = F_theta(tau_{t-1}, o_t, e_t, mu_{t-1}, mbar_t)
@@ -576,7 +581,7 @@ class LatentSwarmPolicy(BasePolicy):
         n_steps = actions.shape[0]
         state = initial_state
         task_states, map_states, received, predicted, has_message = [], [], [], [], []
-        actor_obs = {key: obs[key] for key in ACTOR_KEYS}
+        actor_obs = {key: obs[key] for key in ACTOR_OBS_KEYS}
         # the recurrence is the only loop: over time; every step handles all agents of all swarms at once
         for t in range(n_steps):
             step = self.latent_step({key: value[t] for key, value in actor_obs.items()}, state, episode_starts[t])
@@ -591,7 +596,7 @@ class LatentSwarmPolicy(BasePolicy):
         flat_actions = actions.flatten(0, 1)
         log_prob = distribution.log_prob(flat_actions).view(n_steps, -1)
         entropy = self.action_entropy(distribution).view(n_steps, -1)
-        critic_obs = {key: obs[key].flatten(0, 1) for key in CRITIC_KEYS}
+        critic_obs = {key: obs[key].flatten(0, 1) for key in STATE_OBS_KEYS}
         values = self.critic_output(critic_obs).view(n_steps, -1)
         map_reconstruction = self.decode_map(th.stack(map_states))
         return SequenceEvaluation(
@@ -624,9 +629,9 @@ class LatentSwarmPolicy(BasePolicy):
         :param deterministic: use the mean action
         :return: actions (clipped to the action space) and the new state, a :class:`LatentState` of numpy arrays
         """
-        observation, agent_names = as_vec_observation(observation, ACTOR_KEYS, "LatentSwarmPolicy")
+        observation, agent_names = as_vec_observation(observation, ACTOR_OBS_KEYS, "LatentSwarmPolicy")
         self.set_training_mode(False)
-        obs_tensor = {key: th.as_tensor(observation[key], device=self.device) for key in ACTOR_KEYS}
+        obs_tensor = {key: th.as_tensor(observation[key], device=self.device) for key in ACTOR_OBS_KEYS}
         if obs_tensor["local_obs"].dim() == len(self.observation_space["local_obs"].shape):
             raise ValueError("predict needs a batch of whole swarms (leading slot dimension), got a single observation")
         n_slots = obs_tensor["local_obs"].shape[0]
@@ -647,6 +652,29 @@ class LatentSwarmPolicy(BasePolicy):
         if agent_names is not None:
             return dict(zip(agent_names, actions_np)), new_state
         return actions_np, new_state
+
+
+SB3_POLICY_KWARGS = {
+    "net_arch": "predictor_hidden, decoder_hidden, critic_hidden, actor_hidden (one width each)",
+    "lstm_hidden_size": "latent_dim (d_mu = d_tau = d_rho), or map_dim, task_dim, memory_dim",
+    "n_lstm_layers": "none: the latent state is one GRU cell per part (Sec. III-B)",
+    "shared_lstm": "none: the critic reads the global state, not the latent state",
+    "enable_critic_lstm": "none: the critic reads the global state, not the latent state",
+    "activation_fn": "none: the MLPs use tanh",
+    "features_extractor_class": "none: the encoders are fixed by the observation keys",
+}
+"""SB3 / sb3-contrib ``policy_kwargs`` names and what ``LatentSwarmPolicy`` takes instead, for the error message."""
+
+
+def _unexpected_kwargs_message(unexpected: set[str]) -> str:
+    """``TypeError`` text for unknown ``policy_kwargs``: the valid names, and what to use instead of SB3's names."""
+    internal = {"self", "observation_space", "action_space", "lr_schedule", "unused_kwargs"}
+    valid = [name for name in inspect.signature(LatentSwarmPolicy.__init__).parameters if name not in internal]
+    hints = "".join(f"; {name} -> {SB3_POLICY_KWARGS[name]}" for name in sorted(unexpected) if name in SB3_POLICY_KWARGS)
+    return (
+        f"LatentSwarmPolicy got unexpected keyword argument(s) {sorted(unexpected)}{hints}. "
+        f"Valid policy_kwargs are: {', '.join(valid)}"
+    )
 
 
 def _check_log_std_bounds(bounds: Any) -> tuple[float, float]:

@@ -1,0 +1,104 @@
+"""What a new user meets first: a fast ``--help``, ``--version``, help on every option, clear policy_kwargs errors."""
+
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import sb3_latentswarm
+from sb3_latentswarm.cli import build_parser, main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_python(code: str) -> str:
+    result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    return result.stdout
+
+
+def test_help_imports_neither_torch_nor_stable_baselines3():
+    code = (
+        "import sys\n"
+        "from sb3_latentswarm.cli import build_parser\n"
+        "build_parser().format_help()\n"
+        "print(sorted(m for m in ('torch', 'stable_baselines3', 'sb3_contrib', 'pandas') if m in sys.modules))\n"
+    )
+    assert run_python(code).strip() == "[]"
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--version"])
+    assert exit_info.value.code == 0
+    assert capsys.readouterr().out.strip() == f"sb3-latentswarm {sb3_latentswarm.__version__}"
+
+
+def test_every_option_of_every_subcommand_has_a_help_text():
+    parser = build_parser()
+    subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    missing = [
+        f"{name} {action.option_strings[0]}"
+        for name, sub in subparsers.choices.items()
+        for action in sub._actions
+        if action.option_strings and not action.help
+    ]
+    assert missing == []
+    assert set(subparsers.choices) == {"train", "evaluate", "render", "sweep"}
+
+
+def test_public_names_load_on_first_use():
+    from sb3_latentswarm.latent_ppo import LatentSwarmPPO
+
+    assert sb3_latentswarm.LatentSwarmPPO is LatentSwarmPPO
+    assert set(sb3_latentswarm.__all__) <= set(dir(sb3_latentswarm))
+    with pytest.raises(AttributeError, match="no attribute 'LatentPPO'"):
+        sb3_latentswarm.LatentPPO  # noqa: B018
+
+
+def test_the_thread_default_is_applied_once_so_a_later_choice_is_kept():
+    code = (
+        "import torch\n"
+        "from sb3_latentswarm import LatentSwarmPPO\n"
+        "first = torch.get_num_threads()\n"
+        "torch.set_num_threads(3)\n"
+        "import sb3_latentswarm.envs, sb3_latentswarm.baselines\n"
+        "print(first, torch.get_num_threads())\n"
+    )
+    assert run_python(code).split() == ["1", "3"]
+
+
+def test_sb3_policy_kwargs_get_the_valid_names():
+    from sb3_latentswarm import LatentSwarmPPO, make_vec_env
+    from sb3_latentswarm.presets import get_preset
+
+    env = make_vec_env(1, config=get_preset("smoke").config, seed=0)
+    sb3_style = {"net_arch": [64], "lstm_hidden_size": 8}
+    with pytest.raises(TypeError) as error:
+        LatentSwarmPPO("LatentSwarmPolicy", env, n_steps=20, chunk_length=5, batch_size=30, policy_kwargs=sb3_style)
+    message = str(error.value)
+    assert "['lstm_hidden_size', 'net_arch']" in message
+    assert "net_arch -> predictor_hidden, decoder_hidden, critic_hidden, actor_hidden" in message
+    assert "lstm_hidden_size -> latent_dim" in message
+    assert "Valid policy_kwargs are: latent_dim, map_dim" in message
+
+
+@pytest.mark.slow  # trains and loads two committed models: about 10 s unloaded, minutes on a loaded machine
+def test_the_demo_script_runs_and_reads_its_tables(tmp_path):
+    result = subprocess.run(
+        [sys.executable, "examples/demo.py", "--total-timesteps", "720", "--episodes", "2", "--coordination-episodes", "2"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    out = result.stdout
+    for text in ("### Demo task", "### Coordination task", "| proposed", "| no_comm", "| random swarm",
+                 "| learner trained without links", "| full_comm", "| no_predictor", "| no_memory",
+                 "What the tables show:", "docs/results.md", "episode seeds 1,000,000..1,000,001", "Demo time:"):
+        assert text in out, text
+    reading = out.split("What the tables show:")[1].strip().splitlines()
+    assert len([line for line in reading if line.startswith("- ")]) == 3

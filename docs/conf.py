@@ -69,6 +69,8 @@ RESULTS_MARKER = re.compile(r"^<!-- results-folder: ([\w.-]+) -->$", re.MULTILIN
 # What each plot that the scripts write shows; the first sentence of its caption in results.md (the second names the
 # run it comes from: the folder and the heading of its section).
 PLOT_CAPTIONS = {
+    "resume_learning_curve": "Coverage and collisions of the training rollouts against agent-steps of a run killed with "
+    "kill -9 after 13 updates and resumed with train --resume (seed 1), beside a run that never stopped (seed 2).",
     "coverage_vs_time": "Mean coverage (%) against the episode's step under each condition of Table I, p_f = 0.3.",
     "coverage_vs_p_fail": "Final coverage (%) against the link failure probability p_f (proposed model), next to the "
     "paper's Table I (right).",

@@ -36,6 +36,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from sb3_latentswarm.common.checks import check_int
 from sb3_latentswarm.common.observations import ACTOR_OBS_KEYS, as_vec_observation, proprio_heading, proprio_position
 from sb3_latentswarm.config import SwarmConfig
 
@@ -167,9 +168,7 @@ def _proprio_hash(seed: int, agent: np.ndarray, proprio: np.ndarray, *columns: n
 
 
 def _check_seed(seed: int) -> int:
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed must be an int >= 0, got {seed!r}")
-    return int(seed)
+    return check_int("seed", seed, low=0)
 
 
 class RandomState(NamedTuple):

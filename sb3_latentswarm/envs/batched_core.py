@@ -38,6 +38,7 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 
 from sb3_latentswarm.channel import XI_UNSET, A2AChannel, squared_distances
+from sb3_latentswarm.common.checks import check_int
 from sb3_latentswarm.common.observations import (
     ACTOR_OBS_KEYS,
     OBS_KEYS,
@@ -167,8 +168,7 @@ class SwarmBatch:
     def __init__(self, config: SwarmConfig, n_swarms: int) -> None:
         if not isinstance(config, SwarmConfig):
             raise TypeError(f"config must be a SwarmConfig, got {type(config).__name__} ({config!r})")
-        if isinstance(n_swarms, bool) or not isinstance(n_swarms, (int, np.integer)) or n_swarms < 1:
-            raise ValueError(f"n_swarms must be an int >= 1, got {n_swarms!r}")
+        check_int("n_swarms", n_swarms, low=1)
         self.config = config
         self.n_swarms = b = int(n_swarms)
         self.n_agents = n = config.n_agents

@@ -50,6 +50,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvO
 from supersuit.vector import ConcatVecEnv, ProcConcatVec
 from supersuit.vector.multiproc_vec import decompress_info, numpy_deepcopy
 
+from sb3_latentswarm.common.checks import check_int
 from sb3_latentswarm.config import SwarmConfig, resolve_config
 from sb3_latentswarm.envs.batched_core import (
     OBS_KEYS,
@@ -101,9 +102,7 @@ BACKENDS = ("batched", "supersuit")
 def _check_seed(seed: Any, name: str = "seed") -> int | None:
     if seed is None:
         return None
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"{name} must be None or an int >= 0, got {seed!r}")
-    return int(seed)
+    return check_int(f"{name} (None or an int)", seed, low=0)
 
 
 class SerialOnlyError(RuntimeError):
@@ -385,10 +384,8 @@ def make_vec_env(
     :return: ``VecMonitor(BatchedSwarmVecEnv(...))`` or ``VecMonitor(SwarmVecEnv(...))``; ``n_agents``,
         ``n_swarms`` and ``config`` are forwarded attributes.
     """
-    if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or n_envs < 1:
-        raise ValueError(f"n_envs must be an int >= 1, got {n_envs!r}")
-    if isinstance(num_cpus, bool) or not isinstance(num_cpus, (int, np.integer)) or num_cpus < 0:
-        raise ValueError(f"num_cpus must be an int >= 0, got {num_cpus!r}")
+    check_int("n_envs", n_envs, low=1)
+    check_int("num_cpus", num_cpus, low=0)
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     seed = _check_seed(seed)

@@ -245,8 +245,8 @@ class SwarmConfig:
                 f"SwarmConfig.num_obstacles must be in [0, {self.grid_width * self.grid_height}] (the number of cells), "
                 f"got {self.num_obstacles}"
             )
-        for name, (low, high, low_open) in FLOAT_BOUNDS.items():
-            check_float(name, low, high, low_open=low_open)
+        for name, (float_low, float_high, low_open) in FLOAT_BOUNDS.items():
+            check_float(name, float_low, float_high, low_open=low_open)
         check_float("max_altitude", self.min_altitude, FLOAT_BOUNDS["max_altitude"][1])
         check_float("initial_altitude", self.min_altitude, self.max_altitude)
         check_float("link_range_probability", 0.0, 1.0, low_open=True, high_open=True)

@@ -414,7 +414,7 @@ def _describe(value: Any) -> str:
     return f"{type(value).__name__} ({text[:80]}{'...' if len(text) > 80 else ''})"
 
 
-def check_weights(module: th.nn.Module, params: dict[str, Any], entry: str, path: Any) -> None:
+def check_weights(module: th.nn.Module, params: object, entry: str, path: Any) -> None:
     """Compare the tensors read from ``entry`` with ``module``'s state dict: same names, dtypes and shapes, all finite.
 
     :raise ValueError: naming the file, the entry and the tensor
@@ -453,7 +453,7 @@ def _check_optimizer_state(state: Any, path: Any) -> None:
 # ---------------------------------------------------------------------------------------------- files
 def constructor_arguments(algorithm: type) -> list[str]:
     """The keyword arguments of ``algorithm.__init__`` that a saved model carries (all but policy, env, device)."""
-    parameters = inspect.signature(algorithm.__init__).parameters.values()
+    parameters = inspect.signature(algorithm).parameters.values()
     return [p.name for p in parameters if p.name not in NOT_CONSTRUCTOR_ARGUMENTS and p.kind is p.POSITIONAL_OR_KEYWORD]
 
 

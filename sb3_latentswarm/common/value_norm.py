@@ -25,6 +25,13 @@ class ValueNorm(nn.Module):
     :param min_variance: floor of the variance (MAPPO: 1e-2), so a near-constant return does not blow up the targets
     """
 
+    # registered buffers (declared for type checkers: ``nn.Module.__getattr__`` is typed ``Tensor | Module``)
+    running_mean: th.Tensor
+    running_mean_sq: th.Tensor
+    debiasing_term: th.Tensor
+    rollout_mean: th.Tensor
+    rollout_var: th.Tensor
+
     def __init__(self, beta: float = 0.995, epsilon: float = 1e-5, min_variance: float = 1e-2) -> None:
         super().__init__()
         if not 0.0 < beta < 1.0:

@@ -347,7 +347,7 @@ class SwarmBatch:
             seed = None if seeds is None else seeds[k]
             if seed is not None or self.rngs[swarm] is None:
                 self.rngs[swarm], self.seeds[swarm] = seeding.np_random(seed)
-            rng = self.rngs[swarm]
+            rng = self._rng(swarm)
             obstacles = rng.choice(self._n_cells, size=cfg.num_obstacles, replace=False)
             self._truth[swarm, self._inside_flat[obstacles]] = 1
             start[k] = sample_start_positions(cfg, rng)[0]  # SwarmConfig.start_region
@@ -395,8 +395,8 @@ class SwarmBatch:
             vel[:, :, 1] = forward * sin + lateral * cos
         if cfg.actuation_noise_std > 0.0:
             noise = np.empty(vel.shape)
-            for swarm, rng in enumerate(self.rngs):
-                rng.standard_normal(out=noise[swarm])
+            for swarm in range(len(self.rngs)):
+                self._rng(swarm).standard_normal(out=noise[swarm])
             vel += self._noise_std * noise
         kinematics[:, :, PROPRIO_VELOCITY] = vel
         pos = kinematics[:, :, PROPRIO_POSITION]  # views: updated in place
@@ -468,6 +468,13 @@ class SwarmBatch:
         return check_actions(actions, (self.n_swarms, self.n_agents, 4), "swarms, agents, 4", self.n_agents)
 
     # ------------------------------------------------------------------ internals
+    def _rng(self, swarm: int) -> np.random.Generator:
+        """Swarm ``swarm``'s generator (made at its first reset)."""
+        rng = self.rngs[swarm]
+        if rng is None:
+            raise RuntimeError(f"swarm {swarm} has not been reset: call reset before stepping")
+        return rng
+
     def _listed(self, idx: Swarms) -> list[int]:
         return self._every_swarm if isinstance(idx, slice) else idx.tolist()
 
@@ -488,7 +495,7 @@ class SwarmBatch:
             # Noisy P_o: each reading inside the arena is flipped with probability sensor_flip_prob
             draws = np.empty(readings.shape)
             for k, swarm in enumerate(self._listed(idx)):
-                self.rngs[swarm].random(out=draws[k])
+                self._rng(swarm).random(out=draws[k])
             readings ^= draws < self._flip_prob
             np.maximum(readings, -1, out=readings)  # a flipped outside reading (-1 ^ 1 = -2) stays -1
         covered = self._covered.reshape(-1)
@@ -518,7 +525,7 @@ class SwarmBatch:
             normals = np.empty((len(pos), n, n, 2))
             uniforms = np.empty((len(pos), n, n + 1))
             for k, swarm in enumerate(self._listed(idx)):
-                rng = self.rngs[swarm]
+                rng = self._rng(swarm)
                 rng.standard_normal(out=normals[k])
                 rng.random(out=uniforms[k])
             if self.channel.stateful_outages:  # Gilbert-Elliott: xi follows each link's Markov chain

@@ -97,7 +97,9 @@ class SwarmReconEnv(ParallelEnv):
         unknown names raise ``TypeError``.
     """
 
-    metadata = {"name": "swarm_recon_v0", "render_modes": ["human", "rgb_array"], "render_fps": 10, "is_parallelizable": True}
+    metadata: dict[str, Any] = {
+        "name": "swarm_recon_v0", "render_modes": ["human", "rgb_array"], "render_fps": 10, "is_parallelizable": True
+    }
 
     def __init__(self, config: SwarmConfig | None = None, render_mode: str | None = None, **overrides: Any) -> None:
         config = resolve_config(config, **overrides)
@@ -215,9 +217,9 @@ class SwarmReconEnv(ParallelEnv):
         if not agents:
             raise RuntimeError("step() called without a running episode: call reset() first (the episode has ended)")
         core = self._core
-        reward, terminated, truncated = core.step(core.check_actions(self._stack_actions(actions)[None]))
-        infos = dict(zip(self.possible_agents, core.step_infos(terminated, truncated)[0]))
-        reward, terminated, truncated = float(reward[0]), bool(terminated[0]), bool(truncated[0])
+        rewards, terminateds, truncateds = core.step(core.check_actions(self._stack_actions(actions)[None]))
+        infos = dict(zip(self.possible_agents, core.step_infos(terminateds, truncateds)[0]))
+        reward, terminated, truncated = float(rewards[0]), bool(terminateds[0]), bool(truncateds[0])
         obs = self._observations()
         if terminated or truncated:
             self.agents = []

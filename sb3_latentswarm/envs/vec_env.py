@@ -183,7 +183,7 @@ class SwarmVecEnv(_SwarmSeeding, VecEnvWrapper):
         return observations
 
     def _reset_seeded(self, seed: int) -> VecEnvObs:
-        inner = self.venv.venv
+        inner = self.venv.venv  # type: ignore[attr-defined]  # SuperSuit's SB3VecEnvWrapper; SB3 types venv as VecEnv
         if isinstance(inner, ConcatVecEnv):
             # ConcatVecEnv seeds its i-th MarkovVectorEnv (= copy i) with seed + i.
             observations, infos = inner.reset(seed=seed)
@@ -219,7 +219,7 @@ class SwarmVecEnv(_SwarmSeeding, VecEnvWrapper):
 
         :raises SerialOnlyError: with ``num_cpus > 1`` (the copies live in other processes).
         """
-        inner = self.venv.venv
+        inner = self.venv.venv  # type: ignore[attr-defined]  # SuperSuit's SB3VecEnvWrapper; SB3 types venv as VecEnv
         if not isinstance(inner, ConcatVecEnv):
             # Not an AttributeError: inside a property it would fall through to VecEnvWrapper.__getattr__.
             raise SerialOnlyError("swarm_envs, get_attr and env_method need a serial vec env (num_cpus <= 1)")

@@ -23,7 +23,7 @@ from __future__ import annotations
 import inspect
 import math
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import numpy as np
 import torch as th
@@ -207,6 +207,10 @@ class LatentSwarmPolicy(BasePolicy):
     :param no_memory: ablation: rho is zeroed before every use
     """
 
+    # narrowed from BasePolicy's Space: __init__ accepts only these
+    observation_space: spaces.Dict
+    action_space: spaces.Box
+
     def __init__(
         self,
         observation_space: spaces.Dict,
@@ -298,9 +302,9 @@ class LatentSwarmPolicy(BasePolicy):
             self.message_substitute = "zero"
         self.no_memory = no_memory
 
-        self.local_obs_dim = int(np.prod(observation_space["local_obs"].shape))
-        self.proprio_dim = int(observation_space["proprio"].shape[-1])
-        self.map_shape = tuple(observation_space["global_map"].shape)
+        self.local_obs_dim = int(np.prod(_space_shape(observation_space["local_obs"])))
+        self.proprio_dim = int(_space_shape(observation_space["proprio"])[-1])
+        self.map_shape = tuple(_space_shape(observation_space["global_map"]))
         self.n_cells = int(np.prod(self.map_shape))
         self.action_dim = int(np.prod(action_space.shape))
         o_dim, e_dim, d_mu, d_tau, d_rho, d_msg = (
@@ -341,7 +345,9 @@ class LatentSwarmPolicy(BasePolicy):
 
         if ortho_init:
             self._init_weights()
-        self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
+        self.optimizer = self.optimizer_class(  # type: ignore[call-arg]  # torch types Optimizer(params, defaults); Adam & co take lr
+            self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
+        )
 
     # ------------------------------------------------------------------ construction helpers
     def _init_weights(self) -> None:
@@ -353,7 +359,9 @@ class LatentSwarmPolicy(BasePolicy):
         if self.state_dependent_std:
             nn.init.orthogonal_(self.action_log_std.weight, gain=0.01)
             nn.init.constant_(self.action_log_std.bias, self._raw_log_std_init)
-        nn.init.orthogonal_(self.critic_head[-1].weight, gain=1.0)
+        value_head = self.critic_head[-1]
+        assert isinstance(value_head, nn.Linear)  # _mlp ends with a Linear layer
+        nn.init.orthogonal_(value_head.weight, gain=1.0)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
@@ -518,6 +526,8 @@ class LatentSwarmPolicy(BasePolicy):
         entropy = distribution.entropy()
         if entropy is not None:
             return entropy
+        # only the squashed Gaussian has no closed-form entropy; its log_prob takes the pre-squash actions too
+        assert isinstance(distribution, SquashedDiagGaussianDistribution)
         gaussian_actions = distribution.distribution.rsample()
         return -distribution.log_prob(th.tanh(gaussian_actions), gaussian_actions)
 
@@ -526,7 +536,7 @@ class LatentSwarmPolicy(BasePolicy):
         """Parameters of V_omega only (they read the global state, nothing else reads them)."""
         return [p for module in (self.critic_map, self.critic_agents, self.critic_head) for p in module.parameters()]
 
-    def predict_values(self, obs: dict[str, th.Tensor]) -> th.Tensor:  # type: ignore[override]
+    def predict_values(self, obs: dict[str, th.Tensor]) -> th.Tensor:
         """V_omega(s_t) in return units for every slot, (B, 1) (denormalized when the critic learns normalized values)."""
         values = self.critic_output(obs)
         return values if self.value_normalizer is None else self.value_normalizer.denormalize(values)
@@ -547,7 +557,7 @@ class LatentSwarmPolicy(BasePolicy):
         return self.map_decoder(map_state)
 
     # ------------------------------------------------------------------ SB3 entry points
-    def forward(  # type: ignore[override]
+    def forward(
         self,
         obs: dict[str, th.Tensor],
         latent_state: LatentState,
@@ -632,7 +642,7 @@ class LatentSwarmPolicy(BasePolicy):
         observation, agent_names = as_vec_observation(observation, ACTOR_OBS_KEYS, "LatentSwarmPolicy")
         self.set_training_mode(False)
         obs_tensor = {key: th.as_tensor(observation[key], device=self.device) for key in ACTOR_OBS_KEYS}
-        if obs_tensor["local_obs"].dim() == len(self.observation_space["local_obs"].shape):
+        if obs_tensor["local_obs"].dim() == len(_space_shape(self.observation_space["local_obs"])):
             raise ValueError("predict needs a batch of whole swarms (leading slot dimension), got a single observation")
         n_slots = obs_tensor["local_obs"].shape[0]
         if state is None:
@@ -648,7 +658,8 @@ class LatentSwarmPolicy(BasePolicy):
             step = self.latent_step(obs_tensor, latent, starts)
             actions = self.action_distribution(step.state.task_state).get_actions(deterministic=deterministic)
         actions_np = np.clip(actions.cpu().numpy(), self.action_space.low, self.action_space.high)
-        new_state = LatentState(*(field.cpu().numpy() for field in step.state))
+        # a LatentState holding numpy arrays (its fields are annotated as tensors)
+        new_state = cast("tuple[np.ndarray, ...]", LatentState._make(field.cpu().numpy() for field in step.state))
         if agent_names is not None:
             return dict(zip(agent_names, actions_np)), new_state
         return actions_np, new_state
@@ -685,6 +696,13 @@ def _check_log_std_bounds(bounds: Any) -> tuple[float, float]:
     if not (np.isfinite(low) and np.isfinite(high) and low < high):
         raise ValueError(f"log_std_bounds must be finite with low < high, got {bounds!r}")
     return low, high
+
+
+def _space_shape(space: spaces.Space) -> tuple[int, ...]:
+    """``space.shape``, which gymnasium types as optional (None for spaces without a fixed shape)."""
+    if space.shape is None:
+        raise ValueError(f"LatentSwarmPolicy needs observation spaces with a fixed shape, got {space}")
+    return space.shape
 
 
 def check_observation_space(observation_space: spaces.Space) -> None:

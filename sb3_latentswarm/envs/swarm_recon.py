@@ -387,12 +387,12 @@ def render_frame(core: SwarmBatch, swarm: int) -> np.ndarray:
     cols = np.clip((positions[:, 0] / x_max * img_w).astype(int), 0, img_w - 1)
     rows = np.clip(((1.0 - positions[:, 1] / y_max) * img_h).astype(int), 0, img_h - 1)
     links = core.links[swarm]
-    for i, j in zip(*np.triu_indices(core.n_agents, 1)):
-        if links[i, j] or links[j, i]:
-            steps = max(abs(cols[i] - cols[j]), abs(rows[i] - rows[j])) + 1
-            line_r = np.linspace(rows[i], rows[j], steps).round().astype(int)
-            line_c = np.linspace(cols[i], cols[j], steps).round().astype(int)
-            image[line_r, line_c] = (0, 200, 0) if links[i, j] and links[j, i] else (230, 200, 0)
+    for a, b in zip(*np.triu_indices(core.n_agents, 1)):
+        if links[a, b] or links[b, a]:
+            steps = max(abs(cols[a] - cols[b]), abs(rows[a] - rows[b])) + 1
+            line_r = np.linspace(rows[a], rows[b], steps).round().astype(int)
+            line_c = np.linspace(cols[a], cols[b], steps).round().astype(int)
+            image[line_r, line_c] = (0, 200, 0) if links[a, b] and links[b, a] else (230, 200, 0)
     half = max(1, px // 2 + 1)
     for i in range(core.n_agents):
         image[max(rows[i] - half, 0) : rows[i] + half + 1, max(cols[i] - half, 0) : cols[i] + half + 1] = agent_colours[i]

@@ -205,6 +205,8 @@ def command_train(args: argparse.Namespace) -> int:
     preset = _preset_from_args(args, training=True)
     total = settings["total_timesteps"] or preset.total_timesteps
     settings["total_timesteps"] = total
+    check_int("n_envs", preset.n_envs, low=1)  # before any arithmetic with it
+    check_int("n_steps", preset.algo_kwargs["n_steps"], low=1)
     per_update = preset.algo_kwargs["n_steps"] * preset.n_envs * preset.config.n_agents
     stored = state.get("settings") or {}
     if args.save_freq is None:  # the run's own frequency on --resume (not compared: it changes no result)

@@ -281,3 +281,14 @@ def test_cli_says_when_cuda_falls_back_to_the_cpu(tmp_path, capsys, monkeypatch)
     monkeypatch.setattr(th.cuda, "is_available", lambda: False)
     assert main(["render", "--preset", "smoke", "--device", "cuda", "--output", str(tmp_path / "e.gif")]) == 0
     assert "CUDA is not available here; running on the CPU" in capsys.readouterr().err
+
+
+def test_train_with_zero_envs_names_the_setting(tmp_path, capsys):
+    from sb3_latentswarm.cli import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(["train", "--preset", "smoke", "--set", "n_envs=0", "--output", str(tmp_path / "run"), "--no-progress"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "n_envs must be an int in [1, inf), got 0" in err and "ZeroDivisionError" not in err
+    assert not (tmp_path / "run").exists()

@@ -1,6 +1,7 @@
 """Named training/evaluation budgets: ``paper`` (the paper's setting verbatim), ``fast`` (a documented reduction for a
-2-core CPU), ``coordination`` (a scenario on which coordination is necessary, see ``docs/env.md``), ``demo`` (the
-README's main job, about two minutes) and ``smoke`` (seconds, for the test suite).
+2-core CPU), ``coordination`` (a scenario on which coordination is necessary, see ``docs/env.md``), ``random_corner``
+(``coordination`` with N = 5, the launch corner drawn per episode, T = 48 and bursty outages: no message-free convention
+can split the work), ``demo`` (the README's main job, about two minutes) and ``smoke`` (seconds, for the test suite).
 
 Each preset is a :class:`Preset`: an env config, the ``LatentSwarmPPO`` keyword arguments, the training budget and the
 evaluation budget. ``docs/concepts.md`` explains each reduction.
@@ -247,6 +248,43 @@ def _coordination() -> Preset:
     )
 
 
+def _random_corner() -> Preset:
+    # `coordination` (arena, speeds, obstacles, training options) with five UAVs launched from one of the four corners,
+    # drawn per episode (start_region="random_corner"): a convention fixed in training ("you take the left strip")
+    # cannot split the map when the corner changes, so the UAVs must learn where the others are. The horizon binds:
+    # T = 48 (b_0 / kappa = T), where an ideal sweep needs 400 / (5 * 5 * 0.5) = 32 steps; on this env the best
+    # message-free scripted policy (random strips) loses 19.9 points to a coordinated planner (frontier with map sharing)
+    # at T = 48, 21.4 at T = 40 and only 13.7 at T = 60 (benchmarks/coordination_gap.py, 100 episodes per cell,
+    # docs/results/random_corner_preset_gap/). Outages are bursty (Gilbert-Elliott, p_f = 0.5, mean failure run 25
+    # steps, half an episode): with four peers a UAV is cut off only when all four in-links are down, which at the
+    # paper's Bernoulli p_f = 0.3 happens on 4 % of the planner's agent-steps in runs of 1.1 steps.
+    # n_envs * n_steps * N = 16 * 96 * 5 = 7,680 agent-steps per update, as in `coordination` (16 * 160 * 3); 96 steps
+    # are two episodes; chunks of 24 steps (4 per rollout), minibatches of 16 swarm chunks.
+    horizon = 48
+    config = _coordination().config.replace(
+        n_agents=5,
+        start_region="random_corner",
+        max_steps=horizon,
+        initial_energy=horizon * 0.1,
+        p_fail=0.5,
+        outage_model="gilbert_elliott",
+        mean_outage_steps=25.0,
+    )
+    n_envs, n_steps, updates = 16, 96, 200
+    return Preset(
+        name="random_corner",
+        config=config,
+        n_envs=n_envs,
+        total_timesteps=updates * n_steps * n_envs * config.n_agents,
+        algo_kwargs=_algo_kwargs(
+            n_steps=n_steps, chunk_length=24, batch_size=1920, latent_dim=64, hidden=128, learning_rate=3e-4, mappo=True
+        ),
+        baseline_timesteps=updates * n_steps * n_envs * config.n_agents,
+        eval_episodes=50,
+        description="coordination with N=5, a launch corner drawn per episode, T=48, bursty outages (p_f 0.5, mean 25).",
+    )
+
+
 def _demo() -> Preset:
     # A tiny `coordination`: 12 x 12 cells of 2.5 m, three UAVs from a common 7.5 m corner square, 0.5 cells per step,
     # T = 30 = b_0 / kappa where an ideal sweep needs 144 / (3 * 5 * 0.5) = 19 steps. Measured (examples/demo.py's
@@ -295,7 +333,9 @@ def _smoke() -> Preset:
     )
 
 
-PRESETS: dict[str, Preset] = {preset.name: preset for preset in (_paper(), _fast(), _coordination(), _demo(), _smoke())}
+PRESETS: dict[str, Preset] = {
+    preset.name: preset for preset in (_paper(), _fast(), _coordination(), _random_corner(), _demo(), _smoke())
+}
 
 
 def get_preset(name: str) -> Preset:

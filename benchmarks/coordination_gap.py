@@ -6,21 +6,28 @@ runs ``--episodes`` episodes of the preset's env (its channel, p_f and start reg
 onwards, far from the training seeds 0 to n_envs - 1) at each horizon T of ``--horizons``; ``initial_energy`` follows
 T so that b_0 / kappa = T, as in the presets. The frontier explorer also runs without links (``no_comm``): then it is
 message-free too. The last rows give the gap, best coordinated minus best message-free, in coverage points.
+``--set FIELD=VALUE`` replaces ``SwarmConfig`` fields of the preset (as ``sb3-latentswarm --set`` does), so a candidate
+scenario can be measured before it becomes a preset; ``--output`` also writes the table (markdown, atomically).
 
     python benchmarks/coordination_gap.py --preset coordination --horizons 60 80 100 120 --episodes 50
+    python benchmarks/coordination_gap.py --preset random_corner --horizons 40 48 60 --episodes 100 \\
+        --output docs/results/random_corner_preset_gap/gap.md
 """
 
 from __future__ import annotations
 
 import argparse
 from dataclasses import dataclass
+from pathlib import Path
 
 import pandas as pd
 
 from sb3_latentswarm.baselines import COORDINATED_PLANNERS, MESSAGE_FREE_PLANNERS
+from sb3_latentswarm.cli import parse_overrides
+from sb3_latentswarm.common.atomic import write_text
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.evaluation import evaluate
-from sb3_latentswarm.presets import PRESETS, get_preset
+from sb3_latentswarm.presets import PRESETS, get_preset, override_targets
 
 
 @dataclass(frozen=True)
@@ -76,16 +83,37 @@ def main() -> None:
     parser.add_argument("--horizons", type=int, nargs="+", default=[60, 80, 100, 120])
     parser.add_argument("--episodes", type=int, default=50)
     parser.add_argument("--seed", type=int, default=10_000, help="first held-out episode seed")
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                        help="replace a SwarmConfig field of the preset (repeatable), e.g. --set n_agents=5")
+    parser.add_argument("--output", default=None, help="also write the header and table to this markdown file")
     args = parser.parse_args()
-    preset = get_preset(args.preset)
-    table = coverage_table(preset.config, args.horizons, args.episodes, args.seed)
+    if args.episodes < 2:
+        parser.error(f"--episodes must be >= 2 (the table shows a std), got {args.episodes}")
+    if min(args.horizons) < 1:
+        parser.error(f"--horizons must be >= 1, got {args.horizons}")
+    try:
+        overrides = parse_overrides(args.set)
+        fields = set(override_targets()["SwarmConfig"])
+        not_env = sorted(set(overrides) - fields)
+        if not_env:
+            raise ValueError(f"--set {not_env}: not SwarmConfig fields (this benchmark runs planners, no learner)")
+        preset = get_preset(args.preset).with_overrides(**overrides)
+    except (TypeError, ValueError) as error:
+        parser.error(str(error))
     c = preset.config
-    print(
-        f"preset {preset.name}: {c.grid_width}x{c.grid_height} cells of {c.cell_size:g} m, N={c.n_agents}, "
-        f"v_max={c.v_max:g} m/s, start_region={c.start_region!r} ({c.start_region_size:g} m), p_fail={c.p_fail:g}, "
-        f"outage_model={c.outage_model!r}; {args.episodes} episodes per cell, seeds {args.seed}+; coverage in % (mean ± std)"
+    channel = c.outage_model + (f" (mean outage {c.mean_outage_steps:g} steps)" if c.outage_model == "gilbert_elliott" else "")
+    header = (
+        f"preset {preset.name}{' with ' + ', '.join(args.set) if args.set else ''}: {c.grid_width}x{c.grid_height} cells "
+        f"of {c.cell_size:g} m, N={c.n_agents}, v_max={c.v_max:g} m/s, start_region={c.start_region!r} "
+        f"({c.start_region_size:g} m), p_fail={c.p_fail:g}, outage_model={channel}; {args.episodes} episodes per cell, "
+        f"seeds {args.seed}+; coverage in % (mean ± std)"
     )
-    print(to_markdown(table, args.horizons))
+    table = to_markdown(coverage_table(c, args.horizons, args.episodes, args.seed), args.horizons)
+    print(header)
+    print(table)
+    if args.output is not None:
+        Path(args.output).parent.mkdir(parents=True, exist_ok=True)
+        write_text(Path(args.output), f"{header}\n\n{table}\n")
 
 
 if __name__ == "__main__":

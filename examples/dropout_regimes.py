@@ -188,6 +188,12 @@ def regimes_markdown(summary: pd.DataFrame, conditions: tuple[str, ...]) -> str:
     return to_markdown(pd.DataFrame(rows), decimals=3)
 
 
+def _log_scale(axis, axis_name: str, values: list[np.ndarray]) -> None:
+    """Log scale on ``axis_name`` ("x" or "y") unless no value is finite and positive (nothing to scale: no dropout)."""
+    if any(np.any(np.isfinite(v) & (v > 0)) for v in values):
+        (axis.set_xscale if axis_name == "x" else axis.set_yscale)("log")
+
+
 def _outage_label(mean_outage: float) -> str:
     return "Bernoulli draws (Eq. (1))" if mean_outage == 1.0 else f"Gilbert-Elliott, mean outage {mean_outage:g} steps"
 
@@ -200,11 +206,12 @@ def plot_regimes(summary: pd.DataFrame, conditions: tuple[str, ...], path: Path,
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    wide = summary.pivot_table(index=["p_fail", "mean_outage", "condition"], columns="metric",
-                               values=["mean", "mean_low", "mean_high"])
+    wide = summary.set_index(["p_fail", "mean_outage", "condition", "metric"])[["mean", "mean_low", "mean_high"]]
+    wide = wide.unstack("metric")  # keeps all-NaN metrics (no dropout run at p_f = 0 on a short episode)
     lengths = sorted(length for length in summary["mean_outage"].unique())
     fig, axes = plt.subplots(2, len(lengths), figsize=(3.6 * len(lengths), 6.4), squeeze=False, sharey=True)
     for column, length in enumerate(lengths):
+        runs: list[np.ndarray] = []
         for condition in conditions:
             rows = wide[(wide.index.get_level_values("condition") == condition)
                         & ((wide.index.get_level_values("mean_outage") == length)
@@ -214,6 +221,8 @@ def plot_regimes(summary: pd.DataFrame, conditions: tuple[str, ...], path: Path,
             for row, x_metric in enumerate(("dropout_share", "dropout_run_mean")):
                 ordered = rows.sort_values(("mean", x_metric))
                 x = ordered[("mean", x_metric)].to_numpy(float)
+                if x_metric == "dropout_run_mean":
+                    runs.append(x)
                 y = ordered[("mean", "coverage")].to_numpy(float)
                 error = np.abs(np.stack([y - ordered[("mean_low", "coverage")].to_numpy(float),
                                          ordered[("mean_high", "coverage")].to_numpy(float) - y]))
@@ -222,7 +231,7 @@ def plot_regimes(summary: pd.DataFrame, conditions: tuple[str, ...], path: Path,
         axes[0, column].set_title(_outage_label(length), fontsize=9)
         axes[0, column].set_xlabel("measured share of agent-steps in dropout")
         axes[1, column].set_xlabel("measured mean dropout run (steps)")
-        axes[1, column].set_xscale("log")
+        _log_scale(axes[1, column], "x", runs)
         for row in range(2):
             axes[row, column].grid(alpha=0.3, which="both")
     for row in range(2):
@@ -250,14 +259,16 @@ def plot_error_by_depth(summary: pd.DataFrame, conditions: tuple[str, ...], path
     positions = np.arange(len(DEPTH_COLUMNS))
     for column, length in enumerate(lengths):
         axis = axes[0, column]
+        values: list[np.ndarray] = []
         for condition in conditions:
             rows = errors[(errors["mean_outage"] == length) & (errors["condition"] == condition)]
             if rows.empty:
                 continue
-            by_depth = rows.groupby("metric")["mean"].mean().reindex(list(DEPTH_COLUMNS))
-            axis.plot(positions, by_depth.to_numpy(float), marker="o", label=CONDITION_LABELS[condition])
+            by_depth = rows.groupby("metric")["mean"].mean().reindex(list(DEPTH_COLUMNS)).to_numpy(float)
+            values.append(by_depth)
+            axis.plot(positions, by_depth, marker="o", label=CONDITION_LABELS[condition])
         axis.set_xticks(positions, DEPTH_LABELS)
-        axis.set_yscale("log")
+        _log_scale(axis, "y", values)
         axis.set_xlabel("dropout depth (steps)")
         axis.set_title(_outage_label(length), fontsize=9)
         axis.grid(alpha=0.3, which="both")

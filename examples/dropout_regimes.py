@@ -255,7 +255,7 @@ def plot_error_by_depth(summary: pd.DataFrame, conditions: tuple[str, ...], path
 
     errors = summary[summary["metric"].isin(DEPTH_COLUMNS)]
     lengths = sorted(errors["mean_outage"].unique())
-    fig, axes = plt.subplots(1, len(lengths), figsize=(3.6 * len(lengths), 3.6), squeeze=False, sharey=True)
+    fig, axes = plt.subplots(1, len(lengths), figsize=(3.6 * len(lengths), 4.4), squeeze=False, sharey=True)
     positions = np.arange(len(DEPTH_COLUMNS))
     for column, length in enumerate(lengths):
         axis = axes[0, column]

@@ -188,10 +188,23 @@ def regimes_markdown(summary: pd.DataFrame, conditions: tuple[str, ...]) -> str:
     return to_markdown(pd.DataFrame(rows), decimals=3)
 
 
+RUN_TICKS = (1, 2, 5, 10, 20, 50, 100)
+"""Labelled ticks of the log-scaled dropout-run axis (steps)."""
+
+
 def _log_scale(axis, axis_name: str, values: list[np.ndarray]) -> None:
-    """Log scale on ``axis_name`` ("x" or "y") unless no value is finite and positive (nothing to scale: no dropout)."""
-    if any(np.any(np.isfinite(v) & (v > 0)) for v in values):
-        (axis.set_xscale if axis_name == "x" else axis.set_yscale)("log")
+    """Log scale on ``axis_name`` ("x": the dropout run, labelled at :data:`RUN_TICKS`; "y") unless no value is finite
+    and positive (nothing to scale: no dropout)."""
+    from matplotlib.ticker import NullFormatter
+
+    if not any(np.any(np.isfinite(v) & (v > 0)) for v in values):
+        return
+    if axis_name == "x":
+        axis.set_xscale("log")
+        axis.set_xticks(RUN_TICKS, [str(t) for t in RUN_TICKS])
+        axis.xaxis.set_minor_formatter(NullFormatter())
+    else:
+        axis.set_yscale("log")
 
 
 def _outage_label(mean_outage: float) -> str:

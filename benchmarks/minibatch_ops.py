@@ -8,8 +8,11 @@ minibatches, so the once-per-update work of ``train`` is shared out):
 * ``aten ops``: aten operators dispatched, forward and backward and optimizer (a ``TorchDispatchMode`` counter);
 * ``syncs``: reads of a tensor's value by the host (``.item()``, ``float()``, ``bool()``, ``int()``, ``.tolist()``,
   ``.cpu()``, ``.numpy()``; a ``TorchFunctionMode`` counter): each is a device synchronization on a GPU.
-  ``--sites`` lists where they happen;
-* ``CPU s``: per-thread CPU seconds (``time.thread_time``) of the training call, median over ``--repeats`` calls.
+  ``--sites`` lists where they happen. Reads inside ``torch.optim`` are not counted: Adam's step counters live on the
+  host (``capturable=False``), reading them is no device sync;
+* ``CPU s``: per-thread CPU seconds (``time.thread_time``) of the training call, median over ``--repeats`` calls;
+* ``replay``: the largest difference between the log-probabilities recomputed by ``evaluate_sequences`` for the
+  rollout's actions and those the rollout stored (PPO's ratio is exactly 1 before the first step when it is 0).
 
 Variants (``--autocast none bf16``) are built in the same process and timed in alternation. ``--compare REV`` measures
 the package of git revision ``REV`` (exported to a temporary folder with ``git archive``) against the working tree,
@@ -72,8 +75,8 @@ class SyncCounter(TorchFunctionMode):
         result = func(*args, **(kwargs or {}))
         if name in SYNC_METHODS and not (name == "numpy" and args and id(args[0]) == self._last_cpu):
             frame = sys._getframe(1)
-            site = f"{pathlib.Path(frame.f_code.co_filename).name}:{frame.f_lineno} {name}"
-            self.sites[site] += 1
+            if f"torch{os.sep}optim{os.sep}" not in frame.f_code.co_filename:
+                self.sites[f"{pathlib.Path(frame.f_code.co_filename).name}:{frame.f_lineno} {name}"] += 1
         self._last_cpu = id(result) if name == "cpu" else None  # .cpu().numpy() is one transfer
         return result
 
@@ -96,6 +99,12 @@ def build(preset_name: str, minibatches: int, autocast: str | None, seed: int = 
     _, callback = model._setup_learn(model.n_steps * model.n_envs, callback=None)
     callback.on_training_start(locals(), globals())
     model.collect_rollouts(model.env, callback, model.rollout_buffer, n_rollout_steps=model.n_steps)
+    with th.no_grad():
+        model.replay_error = max(
+            float((model.policy.evaluate_sequences(b.observations, b.actions, b.latent_state, b.episode_starts).log_prob
+                   - b.old_log_prob).abs().max())
+            for b in model.rollout_buffer.get(model.batch_size)
+        )
     model.train()  # warm-up: moves the rollout to tensors once, allocates the optimizer's state
     return model
 
@@ -116,7 +125,7 @@ def measure(preset_name: str, autocasts: list[str | None], minibatches: int, rep
             model.train()
             rows[name]["cpu"].append(time.thread_time() - start)
     model = next(iter(models.values()))
-    result = []
+    result: list[dict[str, Any]] = []
     for name, row in rows.items():
         result.append(
             {
@@ -127,6 +136,7 @@ def measure(preset_name: str, autocasts: list[str | None], minibatches: int, rep
                 "ops": sum(row["ops"].values()) / minibatches,
                 "syncs": sum(row["syncs"].values()) / minibatches,
                 "cpu_s": statistics.median(row["cpu"]) / minibatches,
+                "replay": models[name].replay_error,
                 "sync_sites": dict(row["syncs"]),
                 "top_ops": dict(row["ops"].most_common(8)),
             }
@@ -135,11 +145,12 @@ def measure(preset_name: str, autocasts: list[str | None], minibatches: int, rep
 
 
 def print_table(rows: list[dict[str, Any]], label: str = "", sites: bool = False) -> None:
-    print(f"{'code':>8} {'preset':>13} {'d':>4} {'batch':>6} {'autocast':>8} {'aten ops':>9} {'syncs':>6} {'CPU s':>7}")
+    header = ("code", 8), ("preset", 13), ("d", 4), ("batch", 6), ("autocast", 8), ("aten ops", 9), ("syncs", 6),
+    print(" ".join(f"{name:>{width}}" for name, width in (*header, ("CPU s", 7), ("replay", 8))))
     for row in rows:
         print(
             f"{label or row.get('code', 'new'):>8} {row['preset']:>13} {row['latent_dim']:>4} {row['batch_size']:>6} "
-            f"{row['autocast']:>8} {row['ops']:>9.0f} {row['syncs']:>6.1f} {row['cpu_s']:>7.3f}"
+            f"{row['autocast']:>8} {row['ops']:>9.0f} {row['syncs']:>6.1f} {row['cpu_s']:>7.3f} {row['replay']:>8.1e}"
         )
         if sites:
             for site, count in sorted(row["sync_sites"].items(), key=lambda item: -item[1]):

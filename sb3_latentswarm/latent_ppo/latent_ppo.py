@@ -45,6 +45,7 @@ from sb3_latentswarm.common.type_aliases import LatentState
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.envs.vec_env import check_vec_normalize
 from sb3_latentswarm.latent_ppo.policies import (
+    AUTOCAST_MODES,
     NEW_POLICY_KWARGS,
     LatentSwarmPolicy,
     SequenceEvaluation,
@@ -188,6 +189,8 @@ def validate_algorithm_kwargs(**kwargs: Any) -> dict[str, Any]:
         check_choice("grad_clip", kwargs["grad_clip"], GRAD_CLIP_MODES)
     if "value_loss" in kwargs:
         check_choice("value_loss", kwargs["value_loss"], VALUE_LOSSES)
+    if "autocast" in kwargs:
+        check_choice("autocast (None: float32)", kwargs["autocast"], AUTOCAST_MODES)
     if "verbose" in kwargs:
         check_int("verbose", kwargs["verbose"], low=0, high=2)
     if kwargs.get("seed") is not None:
@@ -262,6 +265,11 @@ class LatentSwarmPPO(RecurrentPPO):
     :param compile_latent_step: run the policy's per-step latent update through ``torch.compile`` (off by default;
         see :meth:`LatentSwarmPolicy.compile_latent_step`: faster steps after a one-time compilation of tens of
         seconds per graph, ``benchmarks/train_throughput.py --compile`` measures both)
+    :param autocast: ``None`` (float32, the default) or ``"bf16"``: the latent forward pass (GRUs, message predictor,
+        map decoder, critic trunk) runs under bfloat16 autocast, in rollouts, training and ``predict`` alike; the latent
+        state, the action heads, log-probabilities, the PPO ratio, ValueNorm and the losses stay float32 (see
+        :attr:`LatentSwarmPolicy.autocast`). Faster only for large latent sizes on CPUs with bf16 matrix units
+        (``benchmarks/minibatch_ops.py`` measures it)
     :param target_kl: optional KL early stopping
     :param stats_window_size: episodes averaged in the rollout logs
     :param tensorboard_log: TensorBoard log folder
@@ -300,6 +308,7 @@ class LatentSwarmPPO(RecurrentPPO):
         huber_delta: float = 10.0,
         log_grad_norms: bool = False,
         compile_latent_step: bool = False,
+        autocast: str | None = None,
         target_kl: float | None = None,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
@@ -354,6 +363,7 @@ class LatentSwarmPPO(RecurrentPPO):
         self.huber_delta = huber_delta
         self.log_grad_norms = log_grad_norms
         self.compile_latent_step = bool(compile_latent_step)
+        self.autocast = autocast
         self.n_agents: int | None = None
         self.save_format = SAVE_FORMAT
         self.saved_by_version = __version__
@@ -409,6 +419,7 @@ class LatentSwarmPPO(RecurrentPPO):
         self.policy = self.policy.to(self.device)
         if not isinstance(self.policy, LatentSwarmPolicy):
             raise ValueError("LatentSwarmPPO needs a LatentSwarmPolicy")
+        self.policy.autocast = self.autocast
         if self.compile_latent_step:
             self.policy.compile_latent_step()
         self._setup_rollout_state()
@@ -735,6 +746,20 @@ class LatentSwarmPPO(RecurrentPPO):
             norms[term] = float(th.sqrt(sum((g.detach() ** 2).sum() for g in grads if g is not None)))
         return norms
 
+    def _raise_non_finite(self, losses: dict[str, th.Tensor], update: int, epoch: int, minibatch: int) -> None:
+        """Raise :class:`NonFiniteLossError` naming the first non-finite loss term, the update, the epoch and the
+        minibatch (counted over the update's epochs)."""
+        for term in LOSS_TERMS:
+            value = float(losses[term].detach())
+            if not math.isfinite(value):
+                raise NonFiniteLossError(
+                    f"the {term} loss is {value} in update {update} (epoch {epoch + 1}, minibatch {minibatch}); lower "
+                    f"learning_rate (now {self.policy.optimizer.param_groups[0]['lr']:g}) or check the rewards and "
+                    f"observations"
+                )
+        raise NonFiniteLossError(f"the weighted sum of the loss terms overflows in update {update} (epoch {epoch + 1}, "
+                                 f"minibatch {minibatch}); lower the loss weights or check the rewards")
+
     def train(self) -> None:
         """One update on the rollout: the joint loss of Sec. III-E, one gradient step per minibatch."""
         self.policy.set_training_mode(True)
@@ -747,70 +772,74 @@ class LatentSwarmPPO(RecurrentPPO):
         weights = self._loss_weights()
         update = self.num_timesteps // (self.n_steps * self.n_envs)  # this update's number, counting rollouts from 1
         parameter_groups = self._parameter_groups()
-        history: dict[str, list[float]] = {term: [] for term in LOSS_TERMS}
-        clip_fractions, approx_kl_divs, group_norms = [], [], []
+        # per minibatch, kept on the device and read once per epoch: the loss terms, approx_kl, the clip fraction
+        # (TERM_STATS), and the gradient norm of each parameter group
+        term_stats: list[list[float]] = []
+        norm_stats: list[list[float]] = []
         grad_norms: dict[str, float] = {}
         continue_training = True
         loss = th.zeros(())
 
         for epoch in range(self.n_epochs):
-            approx_kl_divs = []
+            epoch_terms: list[th.Tensor] = []
+            epoch_norms: list[th.Tensor] = []
             for rollout_data in self.rollout_buffer.get(self.batch_size):
                 losses = self._minibatch_losses(rollout_data, clip_range, clip_range_vf)
-                loss = sum(weights[term] * losses[term] for term in LOSS_TERMS)
+                loss = sum(weights[term] * losses[term] for term in LOSS_TERMS)  # type: ignore[assignment]
+                # the one host sync of a minibatch: a non-finite loss must stop training before it reaches the weights
+                if not bool(th.isfinite(loss)):
+                    self._raise_non_finite(losses, update, epoch, len(term_stats) + len(epoch_terms) + 1)
                 if self.log_grad_norms and not grad_norms:
                     grad_norms = self.loss_gradient_norms(losses)
 
                 with th.no_grad():
                     log_ratio = losses["log_ratio"]
-                    approx_kl_div = th.mean((th.exp(log_ratio) - 1) - log_ratio).cpu().numpy()
                     ratio = th.exp(log_ratio)
-                approx_kl_divs.append(approx_kl_div)
-                for term in LOSS_TERMS:
-                    history[term].append(losses[term].item())
-                    if not math.isfinite(history[term][-1]):
-                        raise NonFiniteLossError(
-                            f"the {term} loss is {history[term][-1]} in update {update} "
-                            f"(epoch {epoch + 1}, minibatch {len(history[term])}); lower learning_rate (now "
-                            f"{self.policy.optimizer.param_groups[0]['lr']:g}) or check the rewards and observations"
-                        )
-                clip_fractions.append(th.mean((th.abs(ratio - 1) > clip_range).float()).item())
+                    approx_kl_div = th.mean((ratio - 1) - log_ratio)
+                    clip_fraction = th.mean((th.abs(ratio - 1) > clip_range).float())
+                    terms = [losses[term].detach() for term in LOSS_TERMS]
+                    epoch_terms.append(th.stack([*terms, approx_kl_div, clip_fraction]))
 
-                if self.target_kl is not None and approx_kl_div > 1.5 * self.target_kl:
+                # SB3's early stop reads approx_kl every minibatch, only when target_kl is set
+                if self.target_kl is not None and float(approx_kl_div) > 1.5 * self.target_kl:
                     continue_training = False
                     if self.verbose >= 1:
-                        print(f"Early stopping at step {epoch} due to reaching max kl: {approx_kl_div:.2f}")
+                        print(f"Early stopping at step {epoch} due to reaching max kl: {float(approx_kl_div):.2f}")
                     break
 
                 self.policy.optimizer.zero_grad()
                 loss.backward()
-                group_norms.append([float(th.nn.utils.clip_grad_norm_(g, self.max_grad_norm)) for g in parameter_groups])
+                epoch_norms.append(th.stack([th.nn.utils.clip_grad_norm_(g, self.max_grad_norm) for g in parameter_groups]))
                 self.policy.optimizer.step()
 
+            term_stats += th.stack(epoch_terms).tolist() if epoch_terms else []
+            norm_stats += th.stack(epoch_norms).tolist() if epoch_norms else []
             self._n_updates += 1
             if not continue_training:
                 break
-        bad = [name for name, p in self.policy.named_parameters() if not bool(th.isfinite(p).all())]
-        if bad:
+        parameters = list(self.policy.parameters())
+        if not bool(th.stack([th.isfinite(p).all() for p in parameters]).all()):
+            bad = [name for name, p in self.policy.named_parameters() if not bool(th.isfinite(p).all())]
             raise NonFiniteLossError(
                 f"parameters {bad[:3]} became NaN or infinite in update {update} (the losses were finite: the step was "
                 f"too large); lower learning_rate (now {self.policy.optimizer.param_groups[0]['lr']:g})"
             )
 
+        means = dict(zip((*LOSS_TERMS, "approx_kl", "clip_fraction"), np.mean(term_stats, axis=0)))
         explained_var = explained_variance(self.rollout_buffer.values.flatten(), self.rollout_buffer.returns.flatten())
-        self.logger.record("train/entropy_loss", np.mean(history["entropy"]))
-        self.logger.record("train/policy_gradient_loss", np.mean(history["policy"]))
-        self.logger.record("train/value_loss", np.mean(history["value"]))
-        self.logger.record("train/map_loss", np.mean(history["map"]))
-        self.logger.record("train/pred_loss", np.mean(history["pred"]))
-        self.logger.record("train/approx_kl", np.mean(approx_kl_divs))
-        self.logger.record("train/clip_fraction", np.mean(clip_fractions))
+        self.logger.record("train/entropy_loss", means["entropy"])
+        self.logger.record("train/policy_gradient_loss", means["policy"])
+        self.logger.record("train/value_loss", means["value"])
+        self.logger.record("train/map_loss", means["map"])
+        self.logger.record("train/pred_loss", means["pred"])
+        self.logger.record("train/approx_kl", means["approx_kl"])
+        self.logger.record("train/clip_fraction", means["clip_fraction"])
         self.logger.record("train/loss", loss.item())
         self.logger.record("train/explained_variance", explained_var)
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/clip_range", clip_range)
-        if group_norms:
-            mean_norms = np.mean(group_norms, axis=0)
+        if norm_stats:
+            mean_norms = np.mean(norm_stats, axis=0)
             names = ["grad_norm"] if self.grad_clip == "global" else ["grad_norm_actor", "grad_norm_critic"]
             for name, value in zip(names, mean_norms):
                 self.logger.record(f"train/{name}", float(value))

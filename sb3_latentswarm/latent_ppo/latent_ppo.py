@@ -22,10 +22,11 @@ import os
 import pathlib
 import warnings
 from collections import deque
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, TypeVar, cast
 
 import numpy as np
 import torch as th
+from gymnasium import spaces
 from sb3_contrib import RecurrentPPO
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
@@ -280,7 +281,7 @@ class LatentSwarmPPO(RecurrentPPO):
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"LatentSwarmPolicy": LatentSwarmPolicy}
-    policy: LatentSwarmPolicy
+    policy: LatentSwarmPolicy  # type: ignore[assignment]  # narrowed: _setup_model builds only this policy
     rollout_buffer: SwarmRolloutBuffer
 
     def __init__(
@@ -331,7 +332,7 @@ class LatentSwarmPPO(RecurrentPPO):
         # recorded in the model file, so that a later change of a default cannot change how a saved model acts
         policy_kwargs = {**NEW_POLICY_KWARGS, **policy_kwargs}
         super().__init__(
-            policy,
+            policy,  # type: ignore[arg-type]  # RecurrentPPO types it as its LSTM policy; ours replaces it
             env,
             learning_rate=learning_rate,
             n_steps=n_steps,
@@ -390,7 +391,8 @@ class LatentSwarmPPO(RecurrentPPO):
             ) from error
         if env.num_envs % n_agents != 0:
             raise ValueError(f"The VecEnv has {env.num_envs} slots, not a multiple of n_agents={n_agents}")
-        link_dim = env.observation_space["link_row"].shape[-1]
+        link_shape = cast(spaces.Dict, env.observation_space)["link_row"].shape  # a Dict: checked above
+        link_dim = link_shape[-1] if link_shape else None
         if link_dim != n_agents:
             raise ValueError(f"observation 'link_row' has length {link_dim} but the env reports n_agents={n_agents}")
         return n_agents
@@ -436,8 +438,8 @@ class LatentSwarmPPO(RecurrentPPO):
         agent-steps is built only when there is an env to train on (:meth:`set_env`).
         """
         self._swarm_summaries: deque[dict[str, Any]] = deque(maxlen=self._stats_window_size)
+        self._last_latent_state: LatentState | None = None
         if self.env is None or self.n_agents is None:
-            self._last_latent_state = None  # type: ignore[assignment]
             return
         self._last_latent_state = self.policy.initial_state(self.n_envs)
         self.rollout_buffer = SwarmRolloutBuffer(
@@ -458,10 +460,11 @@ class LatentSwarmPPO(RecurrentPPO):
         """Set a new swarm VecEnv. Unlike SB3, the number of agents and of env copies may differ from training's."""
         env = self._wrap_env(env, self.verbose)
         n_agents = self._check_swarm_env(env)
-        for key, space in self.observation_space.spaces.items():  # type: ignore[attr-defined]
+        observation_space = cast(spaces.Dict, env.observation_space)  # checked by _check_swarm_env
+        for key, space in cast(spaces.Dict, self.observation_space).spaces.items():
             if key in N_AGENT_KEYS:
                 continue
-            if key not in env.observation_space.spaces or env.observation_space[key].shape != space.shape:
+            if key not in observation_space.spaces or observation_space[key].shape != space.shape:
                 raise ValueError(
                     f"Observation '{key}' of the new env differs from training's ({space}); only the number of agents "
                     f"may change"
@@ -470,17 +473,17 @@ class LatentSwarmPPO(RecurrentPPO):
             raise ValueError(f"Action space mismatch: {env.action_space} != {self.action_space}")
         self._vec_normalize_env = unwrap_vec_normalize(env)
         if force_reset:
-            self._last_obs = None  # type: ignore[assignment]
+            self._last_obs = None
         self.n_agents = n_agents
         self.swarm_config = _env_config(env)
         self.n_envs = env.num_envs
         self.env = env
-        self.observation_space = env.observation_space
-        self.policy.observation_space = env.observation_space
+        self.observation_space = observation_space
+        self.policy.observation_space = observation_space
         self._setup_rollout_state()
 
     @classmethod
-    def load(  # type: ignore[override]
+    def load(
         cls,
         path,
         env: GymEnv | None = None,
@@ -509,6 +512,7 @@ class LatentSwarmPPO(RecurrentPPO):
         if pickled:
             data, _, _ = load_from_zip_file(path, device="cpu", custom_objects=custom_objects, load_data=True)
             check_save_format(data, path, PICKLED_SAVE_FORMATS)
+            assert data is not None  # check_save_format raises for a file without data
             # files from before an actor option existed were built with its old value (LEGACY_POLICY_KWARGS)
             custom_objects = {"policy_kwargs": with_legacy_defaults(data.get("policy_kwargs")), **(custom_objects or {})}
             trusted = super().load(path, env=None, device=device, custom_objects=custom_objects)
@@ -543,7 +547,7 @@ class LatentSwarmPPO(RecurrentPPO):
                 f"{path}: data entry 'swarm_config' has n_agents={self.swarm_config.n_agents}, 'n_agents' is {self.n_agents}"
             )
 
-    def save(self, path, exclude=None, include=None) -> None:  # type: ignore[override]
+    def save(self, path, exclude=None, include=None) -> None:
         """Save the model as plain data and tensors (no pickle): see :mod:`sb3_latentswarm.common.serialization`.
 
         The file holds no path of this machine (an absolute ``tensorboard_log`` is not kept; a relative one is) and no
@@ -564,7 +568,7 @@ class LatentSwarmPPO(RecurrentPPO):
             save_plain(self, tmp, exclude=exclude, include=include)
 
     @classmethod
-    def load_checkpoint(cls, path, env: GymEnv, device: th.device | str = "auto", **kwargs) -> LatentSwarmPPO:
+    def load_checkpoint(cls, path, env: VecEnv, device: th.device | str = "auto", **kwargs) -> LatentSwarmPPO:
         """Rebuild a run from a checkpoint of :class:`~sb3_latentswarm.checkpoints.SwarmCheckpointCallback`.
 
         Continue with ``model.learn(total - model.num_timesteps, reset_num_timesteps=False)``: on the batched backend
@@ -583,7 +587,7 @@ class LatentSwarmPPO(RecurrentPPO):
         return [*super()._excluded_save_params(), "_last_latent_state", "_swarm_summaries"]
 
     # ------------------------------------------------------------------ rollouts
-    def collect_rollouts(  # type: ignore[override]
+    def collect_rollouts(
         self,
         env: VecEnv,
         callback: BaseCallback,
@@ -599,9 +603,11 @@ class LatentSwarmPPO(RecurrentPPO):
         rollout_buffer.reset()
         callback.on_rollout_start()
         latent_state = self._last_latent_state
+        assert latent_state is not None, "No latent state: set an env first"
         link_up_sum, in_link_count, dropout_sum, in_box_sum = 0.0, 0.0, 0.0, 0.0
 
         while n_steps < n_rollout_steps:
+            assert self._last_obs is not None
             with th.no_grad():
                 obs_tensor = obs_as_tensor(self._last_obs, self.device)
                 episode_starts = th.as_tensor(self._last_episode_starts, dtype=th.float32, device=self.device)
@@ -611,7 +617,7 @@ class LatentSwarmPPO(RecurrentPPO):
             in_box_sum += float((clipped_actions == actions).mean())
 
             # link statistics of the observation the agents just acted on (vectorized over slots)
-            link_row = self._last_obs["link_row"]  # type: ignore[index]
+            link_row = self._last_obs["link_row"]
             link_up_sum += float(link_row.sum())
             in_link_count += link_row.shape[0] * (self.n_agents - 1)
             dropout_sum += float((link_row.sum(axis=-1) == 0).mean())
@@ -667,7 +673,7 @@ class LatentSwarmPPO(RecurrentPPO):
         keys = self.observation_space.spaces  # type: ignore[attr-defined]
         terminal = {key: np.stack([infos[i]["terminal_observation"][key] for i in slots]) for key in keys}
         with th.no_grad():
-            values = self.policy.predict_values(obs_as_tensor(terminal, self.device))
+            values = self.policy.predict_values({key: th.as_tensor(obs, device=self.device) for key, obs in terminal.items()})
         bootstrap[slots] = values.cpu().numpy().flatten()
         return bootstrap
 
@@ -743,7 +749,11 @@ class LatentSwarmPPO(RecurrentPPO):
         norms = {}
         for term in LOSS_TERMS:
             grads = th.autograd.grad(weights[term] * losses[term], parameters, retain_graph=True, allow_unused=True)
-            norms[term] = float(th.sqrt(sum((g.detach() ** 2).sum() for g in grads if g is not None)))
+            squared = th.zeros((), device=self.device)
+            for grad in grads:
+                if grad is not None:
+                    squared = squared + (grad.detach() ** 2).sum()
+            norms[term] = float(th.sqrt(squared))
         return norms
 
     def _raise_non_finite(self, losses: dict[str, th.Tensor], update: int, epoch: int, minibatch: int) -> None:
@@ -855,7 +865,7 @@ class LatentSwarmPPO(RecurrentPPO):
         if clip_range_vf is not None:
             self.logger.record("train/clip_range_vf", clip_range_vf)
 
-    def learn(  # type: ignore[override]
+    def learn(
         self: SelfLatentSwarmPPO,
         total_timesteps: int,
         callback: MaybeCallback = None,
@@ -883,6 +893,6 @@ class LatentSwarmPPO(RecurrentPPO):
         )
 
     @property
-    def last_latent_state(self) -> LatentState:
-        """The latent state carried between rollouts (one row per vec-env slot)."""
+    def last_latent_state(self) -> LatentState | None:
+        """The latent state carried between rollouts (one row per vec-env slot); ``None`` without an env."""
         return self._last_latent_state

@@ -736,23 +736,26 @@ class LatentSwarmPolicy(BasePolicy):
         task_states, map_states, received, predicted, has_message = [], [], [], [], []
         # what does not depend on the recurrence is prepared for all T steps at once
         inputs = self.step_inputs({key: obs[key] for key in ACTOR_OBS_KEYS}, episode_starts)
-        # the recurrence is the only loop: over time; every step handles all agents of all swarms at once
-        for t in range(n_steps):
-            step = self.recurrent_step(StepInputs._make(field[t] for field in inputs), state)
-            state = step.state
-            task_states.append(state.task_state)
-            map_states.append(state.map_state)
-            received.append(step.received_message)
-            predicted.append(step.predicted_message)
-            has_message.append(step.has_message)
+        # one autocast region for the sequence (with autocast="bf16"): each weight is cast to bf16 once, not per step
+        with self.latent_autocast():
+            # the recurrence is the only loop: over time; every step handles all agents of all swarms at once
+            for t in range(n_steps):
+                step = self.recurrent_step(StepInputs._make(field[t] for field in inputs), state)
+                state = step.state
+                task_states.append(state.task_state)
+                map_states.append(state.map_state)
+                received.append(step.received_message)
+                predicted.append(step.predicted_message)
+                has_message.append(step.has_message)
+            critic_obs = {key: obs[key].flatten(0, 1) for key in STATE_OBS_KEYS}
+            values = self.critic_output(critic_obs).view(n_steps, -1)
+            map_reconstruction = self.decode_map(th.stack(map_states))
+        # the action heads and log-probabilities in float32
         task_state = th.stack(task_states)  # (T, B, d_tau)
         distribution = self.action_distribution(task_state.flatten(0, 1))
         flat_actions = actions.flatten(0, 1)
         log_prob = distribution.log_prob(flat_actions).view(n_steps, -1)
         entropy = self.action_entropy(distribution).view(n_steps, -1)
-        critic_obs = {key: obs[key].flatten(0, 1) for key in STATE_OBS_KEYS}
-        values = self.critic_output(critic_obs).view(n_steps, -1)
-        map_reconstruction = self.decode_map(th.stack(map_states))
         return SequenceEvaluation(
             values=values,
             log_prob=log_prob,

@@ -14,7 +14,8 @@ minibatches, so the once-per-update work of ``train`` is shared out):
 * ``replay``: the largest difference between the log-probabilities recomputed by ``evaluate_sequences`` for the
   rollout's actions and those the rollout stored (PPO's ratio is exactly 1 before the first step when it is 0).
 
-Variants (``--autocast none bf16``) are built in the same process and timed in alternation. ``--compare REV`` measures
+Variants (``--autocast none bf16``; without ``--autocast`` the preset's own setting) are built in the same process
+and timed in alternation. ``--compare REV`` measures
 the package of git revision ``REV`` (exported to a temporary folder with ``git archive``) against the working tree,
 alternating one subprocess each per ``--rounds`` round, and prints the old/new ratio.
 
@@ -48,6 +49,8 @@ from sb3_latentswarm.presets import PRESETS, get_preset
 SYNC_METHODS = ("item", "__float__", "__bool__", "__int__", "__index__", "tolist", "cpu", "numpy")
 """Tensor methods that hand a tensor's value to the host."""
 REPO = pathlib.Path(__file__).resolve().parents[1]
+PRESET = "preset"
+"""The ``--autocast`` variant that keeps the preset's own setting."""
 
 
 class OpCounter(TorchDispatchMode):
@@ -81,8 +84,11 @@ class SyncCounter(TorchFunctionMode):
         return result
 
 
-def build(preset_name: str, minibatches: int, autocast: str | None, seed: int = 0) -> LatentSwarmPPO:
-    """A model of the preset with a collected rollout of ``minibatches`` minibatches, ready for ``train()``."""
+def build(preset_name: str, minibatches: int, autocast: str | None = PRESET, seed: int = 0) -> LatentSwarmPPO:
+    """A model of the preset with a collected rollout of ``minibatches`` minibatches, ready for ``train()``.
+
+    :param autocast: ``LatentSwarmPPO``'s ``autocast``, or :data:`PRESET` for the preset's own setting
+    """
     from stable_baselines3.common.logger import configure
 
     preset = get_preset(preset_name)
@@ -91,7 +97,7 @@ def build(preset_name: str, minibatches: int, autocast: str | None, seed: int = 
     sequences = max(1, kwargs["batch_size"] // (n_agents * chunk)) * minibatches
     n_envs = max(d for d in range(1, min(8, sequences) + 1) if sequences % d == 0)
     kwargs.update(n_steps=sequences // n_envs * chunk, n_epochs=1, target_kl=None)
-    if autocast is not None:
+    if autocast != PRESET:  # (older packages, measured by --compare, have no autocast argument)
         kwargs["autocast"] = autocast
     env = make_vec_env(n_envs, config=preset.config, seed=seed)
     model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=seed, device="cpu", **kwargs)
@@ -132,7 +138,7 @@ def measure(preset_name: str, autocasts: list[str | None], minibatches: int, rep
                 "preset": preset_name,
                 "latent_dim": model.policy.latent_dim,
                 "batch_size": model.batch_size,
-                "autocast": name or "none",
+                "autocast": getattr(models[name], "autocast", None) or "none",  # the preset's own when not asked
                 "ops": sum(row["ops"].values()) / minibatches,
                 "syncs": sum(row["syncs"].values()) / minibatches,
                 "cpu_s": statistics.median(row["cpu"]) / minibatches,
@@ -183,7 +189,8 @@ def compare(args: argparse.Namespace) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", default="coordination", choices=sorted(PRESETS))
-    parser.add_argument("--autocast", nargs="+", default=["none"], choices=["none", "bf16"])
+    parser.add_argument("--autocast", nargs="+", default=["preset"], choices=["preset", "none", "bf16"],
+                        help="variants: the preset's setting (default), float32, bf16")
     parser.add_argument("--minibatches", type=int, default=2, help="minibatches per train() call (one epoch)")
     parser.add_argument("--repeats", type=int, default=3, help="timed train() calls per variant (median)")
     parser.add_argument("--compare", metavar="REV", help="git revision whose package is measured against the work tree")
@@ -195,7 +202,7 @@ def main() -> None:
     if args.compare:
         compare(args)
         return
-    autocasts = [None if name == "none" else name for name in args.autocast]
+    autocasts = [{"preset": PRESET, "none": None}.get(name, name) for name in args.autocast]
     rows = measure(args.preset, autocasts, args.minibatches, args.repeats)
     if args.json:
         print(json.dumps(rows))

@@ -152,3 +152,19 @@ def test_autocast_is_validated_saved_and_loaded(tmp_path):
     np.testing.assert_array_equal(actions, expected)
     with pytest.raises(ValueError, match="autocast must be one of"):
         model.policy.autocast = "float16"
+
+
+def test_minibatch_benchmark_counts_ops_and_syncs_on_smoke():
+    import importlib.util
+    import pathlib
+
+    path = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "minibatch_ops.py"
+    spec = importlib.util.spec_from_file_location("minibatch_ops", path)
+    benchmark = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(benchmark)
+    rows = benchmark.measure("smoke", [None, "bf16"], minibatches=2, repeats=1)
+    assert [row["autocast"] for row in rows] == ["none", "bf16"]
+    for row in rows:
+        assert row["ops"] > 100 and row["cpu_s"] > 0 and row["replay"] < 1e-5
+        # one finiteness read per minibatch, the per-epoch and per-update reads shared out over the 2 minibatches
+        assert 1 <= row["syncs"] <= 8, row["sync_sites"]

@@ -782,8 +782,8 @@ class LatentSwarmPPO(RecurrentPPO):
         weights = self._loss_weights()
         update = self.num_timesteps // (self.n_steps * self.n_envs)  # this update's number, counting rollouts from 1
         parameter_groups = self._parameter_groups()
-        # per minibatch, kept on the device and read once per epoch: the loss terms, approx_kl, the clip fraction
-        # (TERM_STATS), and the gradient norm of each parameter group
+        # per minibatch, kept on the device and read once per epoch (a host sync each, a device sync on a GPU): the loss
+        # terms, approx_kl and the clip fraction (term_stats); the gradient norm of each parameter group (norm_stats)
         term_stats: list[list[float]] = []
         norm_stats: list[list[float]] = []
         grad_norms: dict[str, float] = {}

@@ -186,7 +186,7 @@ class StepInputs(NamedTuple):
     link_mask: th.Tensor
     """[..., s, i, j] = 1 iff the link j -> i of swarm s delivered at t, (..., n_swarms, N, N)."""
     in_degree: th.Tensor
-    """max(|N_t^i|, 1), (..., n_swarms, N, 1)."""
+    """The in-degree ``max(len(N_t^i), 1)``, at least 1 (the divisor of the message mean), (..., n_swarms, N, 1)."""
     has_message: th.Tensor
     """Whether N_t^i is not empty, (..., B) bool."""
 

@@ -3,6 +3,7 @@ GRU equations of the autocast path, and bf16 autocast (validated, saved, and the
 
 import collections
 import os
+import sys
 
 import numpy as np
 import pytest
@@ -30,8 +31,6 @@ class HostReads(TorchFunctionMode):
     def __torch_function__(self, func, types, args=(), kwargs=None):
         name = getattr(func, "__name__", "")
         if name in SYNC_METHODS:
-            import sys
-
             filename = sys._getframe(1).f_code.co_filename
             if f"torch{os.sep}optim{os.sep}" not in filename:
                 self.count[name] += 1

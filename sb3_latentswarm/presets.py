@@ -176,6 +176,7 @@ def _paper() -> Preset:
             latent_dim=512,
             hidden=256,
             learning_rate=paper_learning_rate(updates, 1000),
+            autocast="bf16",  # 1.39x per training minibatch on this CPU (benchmarks/minibatch_ops.py, docs/algorithm.md)
         ),
         baseline_timesteps=updates * n_steps * n_envs * config.n_agents,
         description="Sec. IV verbatim: 50x50, N=3, d=512, 40 envs, 1600 updates of 600 steps (115M agent-steps; GPU).",

@@ -47,13 +47,16 @@ class ValueNorm(nn.Module):
         self.register_buffer("rollout_var", th.ones(()), persistent=False)
 
     def mean_var(self) -> tuple[th.Tensor, th.Tensor]:
-        """The debiased mean and variance (0 and 1 before the first update)."""
-        if self.debiasing_term <= 0:
-            return th.zeros_like(self.running_mean), th.ones_like(self.running_mean)
+        """The debiased mean and variance (0 and 1 before the first update), 0-d tensors.
+
+        Chosen with ``th.where``, not a Python ``if`` on a tensor: no host sync (a device synchronization on a GPU).
+        """
         debias = self.debiasing_term.clamp(min=self.epsilon)
         mean = self.running_mean / debias
         mean_sq = self.running_mean_sq / debias
-        return mean, (mean_sq - mean**2).clamp(min=self.min_variance)
+        var = (mean_sq - mean**2).clamp(min=self.min_variance)
+        started = self.debiasing_term > 0
+        return th.where(started, mean, th.zeros_like(mean)), th.where(started, var, th.ones_like(var))
 
     @th.no_grad()
     def update(self, targets: th.Tensor) -> None:

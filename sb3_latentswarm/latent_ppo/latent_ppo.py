@@ -22,10 +22,11 @@ import os
 import pathlib
 import warnings
 from collections import deque
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, TypeVar, cast
 
 import numpy as np
 import torch as th
+from gymnasium import spaces
 from sb3_contrib import RecurrentPPO
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
@@ -45,6 +46,7 @@ from sb3_latentswarm.common.type_aliases import LatentState
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.envs.vec_env import check_vec_normalize
 from sb3_latentswarm.latent_ppo.policies import (
+    AUTOCAST_MODES,
     NEW_POLICY_KWARGS,
     LatentSwarmPolicy,
     SequenceEvaluation,
@@ -188,6 +190,8 @@ def validate_algorithm_kwargs(**kwargs: Any) -> dict[str, Any]:
         check_choice("grad_clip", kwargs["grad_clip"], GRAD_CLIP_MODES)
     if "value_loss" in kwargs:
         check_choice("value_loss", kwargs["value_loss"], VALUE_LOSSES)
+    if "autocast" in kwargs:
+        check_choice("autocast (None: float32)", kwargs["autocast"], AUTOCAST_MODES)
     if "verbose" in kwargs:
         check_int("verbose", kwargs["verbose"], low=0, high=2)
     if kwargs.get("seed") is not None:
@@ -262,6 +266,11 @@ class LatentSwarmPPO(RecurrentPPO):
     :param compile_latent_step: run the policy's per-step latent update through ``torch.compile`` (off by default;
         see :meth:`LatentSwarmPolicy.compile_latent_step`: faster steps after a one-time compilation of tens of
         seconds per graph, ``benchmarks/train_throughput.py --compile`` measures both)
+    :param autocast: ``None`` (float32, the default) or ``"bf16"``: the latent forward pass (GRUs, message predictor,
+        map decoder, critic trunk) runs under bfloat16 autocast, in rollouts, training and ``predict`` alike; the latent
+        state, the action heads, log-probabilities, the PPO ratio, ValueNorm and the losses stay float32 (see
+        :attr:`LatentSwarmPolicy.autocast`). Faster only for large latent sizes on CPUs with bf16 matrix units
+        (``benchmarks/minibatch_ops.py`` measures it)
     :param target_kl: optional KL early stopping
     :param stats_window_size: episodes averaged in the rollout logs
     :param tensorboard_log: TensorBoard log folder
@@ -272,7 +281,7 @@ class LatentSwarmPPO(RecurrentPPO):
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"LatentSwarmPolicy": LatentSwarmPolicy}
-    policy: LatentSwarmPolicy
+    policy: LatentSwarmPolicy  # type: ignore[assignment]  # narrowed: _setup_model builds only this policy
     rollout_buffer: SwarmRolloutBuffer
 
     def __init__(
@@ -300,6 +309,7 @@ class LatentSwarmPPO(RecurrentPPO):
         huber_delta: float = 10.0,
         log_grad_norms: bool = False,
         compile_latent_step: bool = False,
+        autocast: str | None = None,
         target_kl: float | None = None,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
@@ -322,7 +332,7 @@ class LatentSwarmPPO(RecurrentPPO):
         # recorded in the model file, so that a later change of a default cannot change how a saved model acts
         policy_kwargs = {**NEW_POLICY_KWARGS, **policy_kwargs}
         super().__init__(
-            policy,
+            policy,  # type: ignore[arg-type]  # RecurrentPPO types it as its LSTM policy; ours replaces it
             env,
             learning_rate=learning_rate,
             n_steps=n_steps,
@@ -354,6 +364,7 @@ class LatentSwarmPPO(RecurrentPPO):
         self.huber_delta = huber_delta
         self.log_grad_norms = log_grad_norms
         self.compile_latent_step = bool(compile_latent_step)
+        self.autocast = autocast
         self.n_agents: int | None = None
         self.save_format = SAVE_FORMAT
         self.saved_by_version = __version__
@@ -380,7 +391,8 @@ class LatentSwarmPPO(RecurrentPPO):
             ) from error
         if env.num_envs % n_agents != 0:
             raise ValueError(f"The VecEnv has {env.num_envs} slots, not a multiple of n_agents={n_agents}")
-        link_dim = env.observation_space["link_row"].shape[-1]
+        link_shape = cast(spaces.Dict, env.observation_space)["link_row"].shape  # a Dict: checked above
+        link_dim = link_shape[-1] if link_shape else None
         if link_dim != n_agents:
             raise ValueError(f"observation 'link_row' has length {link_dim} but the env reports n_agents={n_agents}")
         return n_agents
@@ -409,6 +421,7 @@ class LatentSwarmPPO(RecurrentPPO):
         self.policy = self.policy.to(self.device)
         if not isinstance(self.policy, LatentSwarmPolicy):
             raise ValueError("LatentSwarmPPO needs a LatentSwarmPolicy")
+        self.policy.autocast = self.autocast
         if self.compile_latent_step:
             self.policy.compile_latent_step()
         self._setup_rollout_state()
@@ -425,8 +438,8 @@ class LatentSwarmPPO(RecurrentPPO):
         agent-steps is built only when there is an env to train on (:meth:`set_env`).
         """
         self._swarm_summaries: deque[dict[str, Any]] = deque(maxlen=self._stats_window_size)
+        self._last_latent_state: LatentState | None = None
         if self.env is None or self.n_agents is None:
-            self._last_latent_state = None  # type: ignore[assignment]
             return
         self._last_latent_state = self.policy.initial_state(self.n_envs)
         self.rollout_buffer = SwarmRolloutBuffer(
@@ -447,10 +460,11 @@ class LatentSwarmPPO(RecurrentPPO):
         """Set a new swarm VecEnv. Unlike SB3, the number of agents and of env copies may differ from training's."""
         env = self._wrap_env(env, self.verbose)
         n_agents = self._check_swarm_env(env)
-        for key, space in self.observation_space.spaces.items():  # type: ignore[attr-defined]
+        observation_space = cast(spaces.Dict, env.observation_space)  # checked by _check_swarm_env
+        for key, space in cast(spaces.Dict, self.observation_space).spaces.items():
             if key in N_AGENT_KEYS:
                 continue
-            if key not in env.observation_space.spaces or env.observation_space[key].shape != space.shape:
+            if key not in observation_space.spaces or observation_space[key].shape != space.shape:
                 raise ValueError(
                     f"Observation '{key}' of the new env differs from training's ({space}); only the number of agents "
                     f"may change"
@@ -459,17 +473,17 @@ class LatentSwarmPPO(RecurrentPPO):
             raise ValueError(f"Action space mismatch: {env.action_space} != {self.action_space}")
         self._vec_normalize_env = unwrap_vec_normalize(env)
         if force_reset:
-            self._last_obs = None  # type: ignore[assignment]
+            self._last_obs = None
         self.n_agents = n_agents
         self.swarm_config = _env_config(env)
         self.n_envs = env.num_envs
         self.env = env
-        self.observation_space = env.observation_space
-        self.policy.observation_space = env.observation_space
+        self.observation_space = observation_space
+        self.policy.observation_space = observation_space
         self._setup_rollout_state()
 
     @classmethod
-    def load(  # type: ignore[override]
+    def load(
         cls,
         path,
         env: GymEnv | None = None,
@@ -498,6 +512,7 @@ class LatentSwarmPPO(RecurrentPPO):
         if pickled:
             data, _, _ = load_from_zip_file(path, device="cpu", custom_objects=custom_objects, load_data=True)
             check_save_format(data, path, PICKLED_SAVE_FORMATS)
+            assert data is not None  # check_save_format raises for a file without data
             # files from before an actor option existed were built with its old value (LEGACY_POLICY_KWARGS)
             custom_objects = {"policy_kwargs": with_legacy_defaults(data.get("policy_kwargs")), **(custom_objects or {})}
             trusted = super().load(path, env=None, device=device, custom_objects=custom_objects)
@@ -532,7 +547,7 @@ class LatentSwarmPPO(RecurrentPPO):
                 f"{path}: data entry 'swarm_config' has n_agents={self.swarm_config.n_agents}, 'n_agents' is {self.n_agents}"
             )
 
-    def save(self, path, exclude=None, include=None) -> None:  # type: ignore[override]
+    def save(self, path, exclude=None, include=None) -> None:
         """Save the model as plain data and tensors (no pickle): see :mod:`sb3_latentswarm.common.serialization`.
 
         The file holds no path of this machine (an absolute ``tensorboard_log`` is not kept; a relative one is) and no
@@ -553,7 +568,7 @@ class LatentSwarmPPO(RecurrentPPO):
             save_plain(self, tmp, exclude=exclude, include=include)
 
     @classmethod
-    def load_checkpoint(cls, path, env: GymEnv, device: th.device | str = "auto", **kwargs) -> LatentSwarmPPO:
+    def load_checkpoint(cls, path, env: VecEnv, device: th.device | str = "auto", **kwargs) -> LatentSwarmPPO:
         """Rebuild a run from a checkpoint of :class:`~sb3_latentswarm.checkpoints.SwarmCheckpointCallback`.
 
         Continue with ``model.learn(total - model.num_timesteps, reset_num_timesteps=False)``: on the batched backend
@@ -572,7 +587,7 @@ class LatentSwarmPPO(RecurrentPPO):
         return [*super()._excluded_save_params(), "_last_latent_state", "_swarm_summaries"]
 
     # ------------------------------------------------------------------ rollouts
-    def collect_rollouts(  # type: ignore[override]
+    def collect_rollouts(
         self,
         env: VecEnv,
         callback: BaseCallback,
@@ -588,9 +603,11 @@ class LatentSwarmPPO(RecurrentPPO):
         rollout_buffer.reset()
         callback.on_rollout_start()
         latent_state = self._last_latent_state
+        assert latent_state is not None, "No latent state: set an env first"
         link_up_sum, in_link_count, dropout_sum, in_box_sum = 0.0, 0.0, 0.0, 0.0
 
         while n_steps < n_rollout_steps:
+            assert self._last_obs is not None
             with th.no_grad():
                 obs_tensor = obs_as_tensor(self._last_obs, self.device)
                 episode_starts = th.as_tensor(self._last_episode_starts, dtype=th.float32, device=self.device)
@@ -600,7 +617,7 @@ class LatentSwarmPPO(RecurrentPPO):
             in_box_sum += float((clipped_actions == actions).mean())
 
             # link statistics of the observation the agents just acted on (vectorized over slots)
-            link_row = self._last_obs["link_row"]  # type: ignore[index]
+            link_row = self._last_obs["link_row"]
             link_up_sum += float(link_row.sum())
             in_link_count += link_row.shape[0] * (self.n_agents - 1)
             dropout_sum += float((link_row.sum(axis=-1) == 0).mean())
@@ -656,7 +673,7 @@ class LatentSwarmPPO(RecurrentPPO):
         keys = self.observation_space.spaces  # type: ignore[attr-defined]
         terminal = {key: np.stack([infos[i]["terminal_observation"][key] for i in slots]) for key in keys}
         with th.no_grad():
-            values = self.policy.predict_values(obs_as_tensor(terminal, self.device))
+            values = self.policy.predict_values({key: th.as_tensor(obs, device=self.device) for key, obs in terminal.items()})
         bootstrap[slots] = values.cpu().numpy().flatten()
         return bootstrap
 
@@ -732,8 +749,26 @@ class LatentSwarmPPO(RecurrentPPO):
         norms = {}
         for term in LOSS_TERMS:
             grads = th.autograd.grad(weights[term] * losses[term], parameters, retain_graph=True, allow_unused=True)
-            norms[term] = float(th.sqrt(sum((g.detach() ** 2).sum() for g in grads if g is not None)))
+            squared = th.zeros((), device=self.device)
+            for grad in grads:
+                if grad is not None:
+                    squared = squared + (grad.detach() ** 2).sum()
+            norms[term] = float(th.sqrt(squared))
         return norms
+
+    def _raise_non_finite(self, losses: dict[str, th.Tensor], update: int, epoch: int, minibatch: int) -> None:
+        """Raise :class:`NonFiniteLossError` naming the first non-finite loss term, the update, the epoch and the
+        minibatch (counted over the update's epochs)."""
+        for term in LOSS_TERMS:
+            value = float(losses[term].detach())
+            if not math.isfinite(value):
+                raise NonFiniteLossError(
+                    f"the {term} loss is {value} in update {update} (epoch {epoch + 1}, minibatch {minibatch}); lower "
+                    f"learning_rate (now {self.policy.optimizer.param_groups[0]['lr']:g}) or check the rewards and "
+                    f"observations"
+                )
+        raise NonFiniteLossError(f"the weighted sum of the loss terms overflows in update {update} (epoch {epoch + 1}, "
+                                 f"minibatch {minibatch}); lower the loss weights or check the rewards")
 
     def train(self) -> None:
         """One update on the rollout: the joint loss of Sec. III-E, one gradient step per minibatch."""
@@ -747,70 +782,74 @@ class LatentSwarmPPO(RecurrentPPO):
         weights = self._loss_weights()
         update = self.num_timesteps // (self.n_steps * self.n_envs)  # this update's number, counting rollouts from 1
         parameter_groups = self._parameter_groups()
-        history: dict[str, list[float]] = {term: [] for term in LOSS_TERMS}
-        clip_fractions, approx_kl_divs, group_norms = [], [], []
+        # per minibatch, kept on the device and read once per epoch (a host sync each, a device sync on a GPU): the loss
+        # terms, approx_kl and the clip fraction (term_stats); the gradient norm of each parameter group (norm_stats)
+        term_stats: list[list[float]] = []
+        norm_stats: list[list[float]] = []
         grad_norms: dict[str, float] = {}
         continue_training = True
         loss = th.zeros(())
 
         for epoch in range(self.n_epochs):
-            approx_kl_divs = []
+            epoch_terms: list[th.Tensor] = []
+            epoch_norms: list[th.Tensor] = []
             for rollout_data in self.rollout_buffer.get(self.batch_size):
                 losses = self._minibatch_losses(rollout_data, clip_range, clip_range_vf)
-                loss = sum(weights[term] * losses[term] for term in LOSS_TERMS)
+                loss = sum(weights[term] * losses[term] for term in LOSS_TERMS)  # type: ignore[assignment]
+                # the one host sync of a minibatch: a non-finite loss must stop training before it reaches the weights
+                if not bool(th.isfinite(loss)):
+                    self._raise_non_finite(losses, update, epoch, len(term_stats) + len(epoch_terms) + 1)
                 if self.log_grad_norms and not grad_norms:
                     grad_norms = self.loss_gradient_norms(losses)
 
                 with th.no_grad():
                     log_ratio = losses["log_ratio"]
-                    approx_kl_div = th.mean((th.exp(log_ratio) - 1) - log_ratio).cpu().numpy()
                     ratio = th.exp(log_ratio)
-                approx_kl_divs.append(approx_kl_div)
-                for term in LOSS_TERMS:
-                    history[term].append(losses[term].item())
-                    if not math.isfinite(history[term][-1]):
-                        raise NonFiniteLossError(
-                            f"the {term} loss is {history[term][-1]} in update {update} "
-                            f"(epoch {epoch + 1}, minibatch {len(history[term])}); lower learning_rate (now "
-                            f"{self.policy.optimizer.param_groups[0]['lr']:g}) or check the rewards and observations"
-                        )
-                clip_fractions.append(th.mean((th.abs(ratio - 1) > clip_range).float()).item())
+                    approx_kl_div = th.mean((ratio - 1) - log_ratio)
+                    clip_fraction = th.mean((th.abs(ratio - 1) > clip_range).float())
+                    terms = [losses[term].detach() for term in LOSS_TERMS]
+                    epoch_terms.append(th.stack([*terms, approx_kl_div, clip_fraction]))
 
-                if self.target_kl is not None and approx_kl_div > 1.5 * self.target_kl:
+                # SB3's early stop reads approx_kl every minibatch, only when target_kl is set
+                if self.target_kl is not None and float(approx_kl_div) > 1.5 * self.target_kl:
                     continue_training = False
                     if self.verbose >= 1:
-                        print(f"Early stopping at step {epoch} due to reaching max kl: {approx_kl_div:.2f}")
+                        print(f"Early stopping at step {epoch} due to reaching max kl: {float(approx_kl_div):.2f}")
                     break
 
                 self.policy.optimizer.zero_grad()
                 loss.backward()
-                group_norms.append([float(th.nn.utils.clip_grad_norm_(g, self.max_grad_norm)) for g in parameter_groups])
+                epoch_norms.append(th.stack([th.nn.utils.clip_grad_norm_(g, self.max_grad_norm) for g in parameter_groups]))
                 self.policy.optimizer.step()
 
+            term_stats += th.stack(epoch_terms).tolist() if epoch_terms else []
+            norm_stats += th.stack(epoch_norms).tolist() if epoch_norms else []
             self._n_updates += 1
             if not continue_training:
                 break
-        bad = [name for name, p in self.policy.named_parameters() if not bool(th.isfinite(p).all())]
-        if bad:
+        parameters = list(self.policy.parameters())
+        if not bool(th.stack([th.isfinite(p).all() for p in parameters]).all()):
+            bad = [name for name, p in self.policy.named_parameters() if not bool(th.isfinite(p).all())]
             raise NonFiniteLossError(
                 f"parameters {bad[:3]} became NaN or infinite in update {update} (the losses were finite: the step was "
                 f"too large); lower learning_rate (now {self.policy.optimizer.param_groups[0]['lr']:g})"
             )
 
+        means = dict(zip((*LOSS_TERMS, "approx_kl", "clip_fraction"), np.mean(term_stats, axis=0)))
         explained_var = explained_variance(self.rollout_buffer.values.flatten(), self.rollout_buffer.returns.flatten())
-        self.logger.record("train/entropy_loss", np.mean(history["entropy"]))
-        self.logger.record("train/policy_gradient_loss", np.mean(history["policy"]))
-        self.logger.record("train/value_loss", np.mean(history["value"]))
-        self.logger.record("train/map_loss", np.mean(history["map"]))
-        self.logger.record("train/pred_loss", np.mean(history["pred"]))
-        self.logger.record("train/approx_kl", np.mean(approx_kl_divs))
-        self.logger.record("train/clip_fraction", np.mean(clip_fractions))
+        self.logger.record("train/entropy_loss", means["entropy"])
+        self.logger.record("train/policy_gradient_loss", means["policy"])
+        self.logger.record("train/value_loss", means["value"])
+        self.logger.record("train/map_loss", means["map"])
+        self.logger.record("train/pred_loss", means["pred"])
+        self.logger.record("train/approx_kl", means["approx_kl"])
+        self.logger.record("train/clip_fraction", means["clip_fraction"])
         self.logger.record("train/loss", loss.item())
         self.logger.record("train/explained_variance", explained_var)
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/clip_range", clip_range)
-        if group_norms:
-            mean_norms = np.mean(group_norms, axis=0)
+        if norm_stats:
+            mean_norms = np.mean(norm_stats, axis=0)
             names = ["grad_norm"] if self.grad_clip == "global" else ["grad_norm_actor", "grad_norm_critic"]
             for name, value in zip(names, mean_norms):
                 self.logger.record(f"train/{name}", float(value))
@@ -826,7 +865,7 @@ class LatentSwarmPPO(RecurrentPPO):
         if clip_range_vf is not None:
             self.logger.record("train/clip_range_vf", clip_range_vf)
 
-    def learn(  # type: ignore[override]
+    def learn(
         self: SelfLatentSwarmPPO,
         total_timesteps: int,
         callback: MaybeCallback = None,
@@ -854,6 +893,6 @@ class LatentSwarmPPO(RecurrentPPO):
         )
 
     @property
-    def last_latent_state(self) -> LatentState:
-        """The latent state carried between rollouts (one row per vec-env slot)."""
+    def last_latent_state(self) -> LatentState | None:
+        """The latent state carried between rollouts (one row per vec-env slot); ``None`` without an env."""
         return self._last_latent_state

@@ -20,6 +20,7 @@ The actor side reads only ``local_obs``, ``proprio`` and ``link_row``; the criti
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import math
 from collections.abc import Callable
@@ -33,6 +34,7 @@ from stable_baselines3.common.distributions import DiagGaussianDistribution, Squ
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
+from torch.distributions import Normal
 
 from sb3_latentswarm.common.checks import check_choice, check_float
 from sb3_latentswarm.common.observations import (
@@ -60,6 +62,11 @@ LEGACY_POLICY_KWARGS: dict[str, Any] = {"log_std_mapping": "clamp", "action_dist
 exactly as before."""
 
 
+AUTOCAST_MODES = (None, "bf16")
+"""Values of ``autocast``: ``None`` (float32 everywhere, the default) or ``"bf16"`` (bfloat16 autocast of the latent
+forward pass: GRUs, message predictor, map decoder, critic trunk)."""
+
+
 def with_legacy_defaults(policy_kwargs: dict[str, Any] | None) -> dict[str, Any]:
     """The saved ``policy_kwargs`` of a model file, completed with :data:`LEGACY_POLICY_KWARGS` where a key is missing."""
     return {**LEGACY_POLICY_KWARGS, **(policy_kwargs or {})}
@@ -85,6 +92,26 @@ def inverse_smooth_log_std(log_std: float, low: float, high: float) -> float:
     return math.atanh(2.0 * (log_std - low) / (high - low) - 1.0)
 
 
+def unvalidated_normal(mean_actions: th.Tensor, log_std: th.Tensor) -> Normal:
+    """SB3's diagonal Gaussian N(mean, exp(log_std)^2), built without ``torch.distributions``' argument validation.
+
+    Validation reads ``bool()`` of tensors (a host sync per check, several per minibatch); the arguments here are
+    finite by construction (a linear head and a bounded log std). Per distribution rather than
+    ``Distribution.set_default_validate_args(False)``, which would switch it off for the user's code too.
+    """
+    action_std = th.ones_like(mean_actions) * log_std.exp()
+    return Normal(mean_actions, action_std, validate_args=False)
+
+
+class UnvalidatedDiagGaussianDistribution(DiagGaussianDistribution):
+    """SB3's :class:`~stable_baselines3.common.distributions.DiagGaussianDistribution` without argument validation
+    (:func:`unvalidated_normal`): the same numbers, no host syncs."""
+
+    def proba_distribution(self, mean_actions: th.Tensor, log_std: th.Tensor) -> UnvalidatedDiagGaussianDistribution:
+        self.distribution = unvalidated_normal(mean_actions, log_std)
+        return self
+
+
 class TanhSquashedGaussianDistribution(SquashedDiagGaussianDistribution):
     """SB3's :class:`~stable_baselines3.common.distributions.SquashedDiagGaussianDistribution` (a = tanh(u),
     u ~ N(mean, std^2)) with the exact change of variables in :meth:`log_prob`.
@@ -93,8 +120,12 @@ class TanhSquashedGaussianDistribution(SquashedDiagGaussianDistribution):
     nats per dimension, and it flattens the sampled entropy estimate once abs(u) passes about 7, so that estimate stops
     pulling the actor back from saturation. Here log(da/du) = log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u)),
     exact and finite for every u. ``entropy()`` stays ``None`` (no closed form): see
-    :meth:`LatentSwarmPolicy.action_entropy`.
+    :meth:`LatentSwarmPolicy.action_entropy`. Built without argument validation (:func:`unvalidated_normal`).
     """
+
+    def proba_distribution(self, mean_actions: th.Tensor, log_std: th.Tensor) -> TanhSquashedGaussianDistribution:
+        self.distribution = unvalidated_normal(mean_actions, log_std)
+        return self
 
     def log_prob(self, actions: th.Tensor, gaussian_actions: th.Tensor | None = None) -> th.Tensor:
         """log pi(a) = log N(u; mean, std^2) - sum_k log(1 - tanh(u_k)^2), (B,).
@@ -137,6 +168,47 @@ else the substitute:
 ``own_message``  the agent's own message z_{t-1}^i (extension)
 ===============  ===========================================================================================
 """
+
+
+class StepInputs(NamedTuple):
+    """What a latent step reads from the observation, before the recurrence (:meth:`LatentSwarmPolicy.step_inputs`).
+
+    Leading dims ``(...)``: ``(B,)`` for one step, ``(T, B)`` for a training sequence (then indexed per step)."""
+
+    keep: th.Tensor
+    """1 - episode_start, (..., B, 1): the carried state is zeroed where an episode starts."""
+    local_obs: th.Tensor
+    """o_t, flattened, float32, (..., B, o_dim)."""
+    proprio: th.Tensor
+    """e_t, float32, (..., B, e_dim)."""
+    position: th.Tensor
+    """p_t, the first entries of e_t, (..., B, 3)."""
+    link_mask: th.Tensor
+    """[..., s, i, j] = 1 iff the link j -> i of swarm s delivered at t, (..., n_swarms, N, N)."""
+    in_degree: th.Tensor
+    """The in-degree ``max(len(N_t^i), 1)``, at least 1 (the divisor of the message mean), (..., n_swarms, N, 1)."""
+    has_message: th.Tensor
+    """Whether N_t^i is not empty, (..., B) bool."""
+
+
+def gru_cell(inputs: th.Tensor, hidden: th.Tensor, cell: nn.GRUCell) -> th.Tensor:
+    """``torch.nn.GRUCell``'s equations with its parameters, its two GEMMs written as ``F.linear`` so that autocast runs
+    them in bfloat16 (``GRUCell``'s own op is not autocast on CPU); the gates are computed in float32:
+
+    r = sigmoid(W_ir x + b_ir + W_hr h + b_hr), z = sigmoid(W_iz x + b_iz + W_hz h + b_hz),
+    n = tanh(W_in x + b_in + r * (W_hn h + b_hn)), h' = (1 - z) * n + z * h = (h - n) * z + n.
+
+    :param inputs: x, (B, input_size)
+    :param hidden: h, (B, hidden_size), float32
+    :param cell: the ``GRUCell`` whose ``weight_ih``, ``bias_ih``, ``weight_hh``, ``bias_hh`` are used
+    :return: h', (B, hidden_size), float32 (the dtype of ``hidden``)
+    """
+    input_r, input_z, input_n = F.linear(inputs, cell.weight_ih, cell.bias_ih).float().chunk(3, dim=-1)
+    hidden_r, hidden_z, hidden_n = F.linear(hidden, cell.weight_hh, cell.bias_hh).float().chunk(3, dim=-1)
+    reset = th.sigmoid(input_r + hidden_r)
+    update = th.sigmoid(input_z + hidden_z)
+    new = th.tanh(input_n + reset * hidden_n)
+    return (hidden - new) * update + new
 
 
 class SequenceEvaluation(NamedTuple):
@@ -338,10 +410,12 @@ class LatentSwarmPolicy(BasePolicy):
         self.critic_agents = nn.Sequential(nn.Linear(e_dim, critic_hidden // 4), nn.ReLU())
         self.critic_head = _mlp([critic_hidden + critic_hidden // 4, critic_hidden, 1], nn.ReLU)
         self.value_normalizer = ValueNorm(beta=value_norm_beta) if self.normalize_value else None
-        self.action_dist = (
-            TanhSquashedGaussianDistribution(self.action_dim) if squashed else DiagGaussianDistribution(self.action_dim)
+        gaussian: type[DiagGaussianDistribution] = (
+            TanhSquashedGaussianDistribution if squashed else UnvalidatedDiagGaussianDistribution
         )
+        self.action_dist = gaussian(self.action_dim)
         self._compiled_latent_step: Callable[..., StepOutput] | None = None
+        self.autocast = None
 
         if ortho_init:
             self._init_weights()
@@ -408,49 +482,112 @@ class LatentSwarmPolicy(BasePolicy):
 
     # ------------------------------------------------------------------ the latent step (Sec. III)
     def latent_step(self, obs: dict[str, th.Tensor], state: LatentState, episode_starts: th.Tensor) -> StepOutput:
-        """One step of every latent update for a batch of whole swarms (compiled after :meth:`compile_latent_step`).
+        """One step of every latent update for a batch of whole swarms (:meth:`step_inputs`, then
+        :meth:`recurrent_step`).
 
         :param obs: actor observation tensors of step t with leading dim B = n_swarms * n_agents (env-major)
         :param state: the state carried in from step t-1
         :param episode_starts: (B,) 1.0 where obs is the first of an episode: the state is reset to zero there
+        :raise ValueError: when B is not a whole number of swarms
         """
-        step = self._eager_latent_step if self._compiled_latent_step is None else self._compiled_latent_step
-        return step(obs, state, episode_starts)
+        return self.recurrent_step(self.step_inputs(obs, episode_starts), state)
+
+    def step_inputs(self, obs: dict[str, th.Tensor], episode_starts: th.Tensor) -> StepInputs:
+        """What the latent step reads from the observation and the episode starts: the conversions and link
+        statistics that do not depend on the recurrence. Any leading dims: one step (B,) in rollouts, a whole training
+        sequence (T, B) at once in :meth:`evaluate_sequences` (element-wise, so the numbers are the same).
+
+        :param obs: actor observation tensors, (..., B, ...)
+        :param episode_starts: (..., B)
+        :raise ValueError: when B is not a whole number of swarms
+        """
+        link_row = obs["link_row"].float()  # (..., B, N)
+        n_agents, batch = link_row.shape[-1], link_row.shape[-2]
+        if batch % n_agents != 0:
+            raise ValueError(f"The batch of {batch} slots is not a whole number of swarms of {n_agents} agents")
+        # [..., s, i, j] = 1 iff j -> i delivered at t
+        link_mask = link_row.view(*link_row.shape[:-2], batch // n_agents, n_agents, n_agents)
+        in_degree = link_mask.sum(-1, keepdim=True)  # |N_t^i|, (..., n_swarms, N, 1)
+        proprio = obs["proprio"].float()  # (..., B, e_dim)
+        return StepInputs(
+            keep=(1.0 - episode_starts.float()).unsqueeze(-1),
+            local_obs=obs["local_obs"].float().flatten(episode_starts.dim()),
+            proprio=proprio,
+            position=proprio[..., PROPRIO_POSITION],
+            link_mask=link_mask,
+            in_degree=in_degree.clamp(min=1.0),
+            has_message=(in_degree > 0).view(link_row.shape[:-1]),
+        )
+
+    def recurrent_step(self, inputs: StepInputs, state: LatentState) -> StepOutput:
+        """The latent updates of one step (Sec. III), under the policy's :attr:`autocast` (compiled after
+        :meth:`compile_latent_step`); outputs in float32.
+
+        :param inputs: :meth:`step_inputs` of this step, leading dim B
+        :param state: the state carried in from step t-1, (B, ...) per field
+        """
+        step = self._eager_recurrent_step if self._compiled_latent_step is None else self._compiled_latent_step
+        if self.autocast is None:
+            return step(inputs, state)
+        with self.latent_autocast():
+            out = step(inputs, state)
+        return StepOutput(
+            LatentState(*(field.float() for field in out.state)),
+            out.received_message.float(),
+            out.predicted_message.float(),
+            out.has_message,
+            out.sent_message.float(),
+        )
 
     def compile_latent_step(self, **compile_kwargs: Any) -> None:
-        """Run :meth:`latent_step` through ``torch.compile`` from now on (rollouts and training).
+        """Run the latent updates of :meth:`recurrent_step` through ``torch.compile`` from now on (rollouts and
+        training).
 
         Compilation is lazy: the first call with each new batch size and grad mode compiles (tens of seconds per
         graph on a CPU with the default inductor backend), later calls reuse the graph.
 
         :param compile_kwargs: keyword arguments of ``torch.compile`` (e.g. ``backend``, ``mode``)
         """
-        self._compiled_latent_step = th.compile(self._eager_latent_step, **compile_kwargs)
+        self._compiled_latent_step = th.compile(self._eager_recurrent_step, **compile_kwargs)
 
-    def _eager_latent_step(self, obs: dict[str, th.Tensor], state: LatentState, episode_starts: th.Tensor) -> StepOutput:
-        keep = (1.0 - episode_starts.float()).unsqueeze(-1)
-        map_prev, task_prev, memory_prev, local_prev, message_prev, held_prev = (field * keep for field in state)
-        local_obs = obs["local_obs"].float().flatten(1)  # (B, o_dim)
-        proprio = obs["proprio"].float()  # (B, e_dim)
-        link_row = obs["link_row"].float()  # (B, N)
-        n_agents = link_row.shape[-1]
-        batch = local_obs.shape[0]
-        if batch % n_agents != 0:
-            raise ValueError(f"The batch of {batch} slots is not a whole number of swarms of {n_agents} agents")
-        n_swarms = batch // n_agents
+    @property
+    def autocast(self) -> str | None:
+        """``None`` (float32) or ``"bf16"``: bfloat16 autocast of the latent forward pass (GRU and predictor GEMMs, map
+        decoder, critic trunk); the latent state, the action heads, log-probabilities and values stay float32.
+
+        :raise ValueError: when set to a value not in :data:`AUTOCAST_MODES`
+        """
+        return self._autocast
+
+    @autocast.setter
+    def autocast(self, value: str | None) -> None:
+        self._autocast = check_choice("autocast", value, AUTOCAST_MODES)
+
+    def latent_autocast(self) -> contextlib.AbstractContextManager[Any]:
+        """The autocast context of the latent forward pass: bfloat16 with ``autocast="bf16"``, nothing otherwise."""
+        if self.autocast is None:
+            return contextlib.nullcontext()
+        return th.autocast(self.device.type, dtype=th.bfloat16)
+
+    def _gru(self, cell: nn.GRUCell, inputs: th.Tensor, hidden: th.Tensor) -> th.Tensor:
+        # GRUCell's own kernel is not autocast on CPU: under autocast its equations go through gru_cell's F.linear
+        return cell(inputs, hidden) if self.autocast is None else gru_cell(inputs, hidden, cell)
+
+    def _eager_recurrent_step(self, inputs: StepInputs, state: LatentState) -> StepOutput:
+        map_prev, task_prev, memory_prev, local_prev, message_prev, held_prev = (field * inputs.keep for field in state)
+        local_obs, proprio, has_message = inputs.local_obs, inputs.proprio, inputs.has_message  # (B, o_dim), (B, e_dim), (B,)
+        n_swarms, n_agents = inputs.link_mask.shape[:2]
+        batch = n_swarms * n_agents
 
         # Sec. III-B: z_{t-1}^j = [mu_{t-1}^j; tau_{t-1}^j],  m_t^i = mean_{j in N_t^i} z_{t-1}^j
-        link_mask = link_row.view(n_swarms, n_agents, n_agents)  # [i, j] = 1 iff j -> i delivered at t
         sent_message = th.cat([map_prev, task_prev], dim=-1)  # z_{t-1}^i, (B, d_msg)
         messages = sent_message.view(n_swarms, n_agents, self.message_dim)
-        in_degree = link_mask.sum(-1, keepdim=True)  # |N_t^i|, (n_swarms, N, 1)
-        received_message = (th.bmm(link_mask, messages) / in_degree.clamp(min=1.0)).view(batch, self.message_dim)
-        has_message = (in_degree > 0).view(batch)
+        received_message = (th.bmm(inputs.link_mask, messages) / inputs.in_degree).view(batch, self.message_dim)
 
         # Sec. III-A: rho_t = G_psi(rho_{t-1}, tau_{t-1}, o_{t-1}, mbar_{t-1})   (no_memory: rho zeroed before use)
         if self.no_memory:
             memory_prev = th.zeros_like(memory_prev)
-        memory_state = self.memory_encoder(th.cat([task_prev, local_prev, message_prev], dim=-1), memory_prev)
+        memory_state = self._gru(self.memory_encoder, th.cat([task_prev, local_prev, message_prev], dim=-1), memory_prev)
         memory_used = th.zeros_like(memory_state) if self.no_memory else memory_state
 
         # Sec. III-C: mhat_t = P_zeta(rho_t, o_t, e_t);  mbar_t = m_t if N_t^i != {} else mhat_t
@@ -471,11 +608,10 @@ class LatentSwarmPolicy(BasePolicy):
         # Sec. III-A, asymmetric update: mu_t = E_phi(mu_{t-1}, o_t, p_t, m^mu_t), m^mu_t = 0 when nothing arrived
         # (received_message is already zero there, so the predictor never reaches the map state)
         map_message = received_message[:, : self.map_dim]
-        position = proprio[:, PROPRIO_POSITION]
-        map_state = self.map_encoder(th.cat([local_obs, position, map_message], dim=-1), map_prev)
+        map_state = self._gru(self.map_encoder, th.cat([local_obs, inputs.position, map_message], dim=-1), map_prev)
 
         # Sec. III-A: tau_t = F_theta(tau_{t-1}, o_t, e_t, mu_{t-1}, mbar_t)
-        task_state = self.task_encoder(th.cat([local_obs, proprio, map_prev, best_message], dim=-1), task_prev)
+        task_state = self._gru(self.task_encoder, th.cat([local_obs, proprio, map_prev, best_message], dim=-1), task_prev)
 
         new_state = LatentState(map_state, task_state, memory_state, local_obs, best_message, held_message)
         return StepOutput(new_state, received_message, predicted_message, has_message, sent_message)
@@ -543,18 +679,25 @@ class LatentSwarmPolicy(BasePolicy):
 
     def critic_output(self, obs: dict[str, th.Tensor]) -> th.Tensor:
         """The critic's raw output for every slot, (B, 1); computed once per swarm and broadcast to its agents."""
-        swarm_proprio = obs["swarm_proprio"].float()  # (B, N, e_dim)
+        swarm_proprio = obs["swarm_proprio"]  # (B, N, e_dim)
         n_agents = swarm_proprio.shape[-2]
         batch_shape = swarm_proprio.shape[:-2]
-        flat_proprio = swarm_proprio.reshape(-1, n_agents, n_agents, self.proprio_dim)[:, 0]  # (n_swarms, N, e_dim)
-        flat_map = obs["global_map"].float().reshape(-1, n_agents, self.n_cells)[:, 0]  # (n_swarms, n_cells)
-        features = th.cat([self.critic_map(flat_map), self.critic_agents(flat_proprio).mean(dim=1)], dim=-1)
-        values = self.critic_head(features)  # (n_swarms, 1)
+        # each swarm's global state (repeated for its agents) is selected before the float conversion
+        flat_proprio = swarm_proprio.reshape(-1, n_agents, n_agents, self.proprio_dim)[:, 0].float()  # (n_swarms, N, e_dim)
+        flat_map = obs["global_map"].reshape(-1, n_agents, self.n_cells)[:, 0].float()  # (n_swarms, n_cells)
+        with self.latent_autocast():
+            features = th.cat([self.critic_map(flat_map), self.critic_agents(flat_proprio).mean(dim=1)], dim=-1)
+            values = self.critic_head(features).float()  # (n_swarms, 1)
         return values.repeat_interleave(n_agents, dim=0).reshape(*batch_shape, 1)
 
     def decode_map(self, map_state: th.Tensor) -> th.Tensor:
-        """D_eta(mu_t): the reconstruction of M_hat_t, flattened row-major."""
-        return self.map_decoder(map_state)
+        """D_eta(mu_t): the reconstruction of M_hat_t, flattened row-major, float32 (computed under :attr:`autocast`).
+
+        :param map_state: mu_t, (..., d_mu)
+        :return: (..., grid_height * grid_width)
+        """
+        with self.latent_autocast():
+            return self.map_decoder(map_state).float()
 
     # ------------------------------------------------------------------ SB3 entry points
     def forward(
@@ -591,24 +734,28 @@ class LatentSwarmPolicy(BasePolicy):
         n_steps = actions.shape[0]
         state = initial_state
         task_states, map_states, received, predicted, has_message = [], [], [], [], []
-        actor_obs = {key: obs[key] for key in ACTOR_OBS_KEYS}
-        # the recurrence is the only loop: over time; every step handles all agents of all swarms at once
-        for t in range(n_steps):
-            step = self.latent_step({key: value[t] for key, value in actor_obs.items()}, state, episode_starts[t])
-            state = step.state
-            task_states.append(state.task_state)
-            map_states.append(state.map_state)
-            received.append(step.received_message)
-            predicted.append(step.predicted_message)
-            has_message.append(step.has_message)
+        # what does not depend on the recurrence is prepared for all T steps at once
+        inputs = self.step_inputs({key: obs[key] for key in ACTOR_OBS_KEYS}, episode_starts)
+        # one autocast region for the sequence (with autocast="bf16"): each weight is cast to bf16 once, not per step
+        with self.latent_autocast():
+            # the recurrence is the only loop: over time; every step handles all agents of all swarms at once
+            for t in range(n_steps):
+                step = self.recurrent_step(StepInputs._make(field[t] for field in inputs), state)
+                state = step.state
+                task_states.append(state.task_state)
+                map_states.append(state.map_state)
+                received.append(step.received_message)
+                predicted.append(step.predicted_message)
+                has_message.append(step.has_message)
+            critic_obs = {key: obs[key].flatten(0, 1) for key in STATE_OBS_KEYS}
+            values = self.critic_output(critic_obs).view(n_steps, -1)
+            map_reconstruction = self.decode_map(th.stack(map_states))
+        # the action heads and log-probabilities in float32
         task_state = th.stack(task_states)  # (T, B, d_tau)
         distribution = self.action_distribution(task_state.flatten(0, 1))
         flat_actions = actions.flatten(0, 1)
         log_prob = distribution.log_prob(flat_actions).view(n_steps, -1)
         entropy = self.action_entropy(distribution).view(n_steps, -1)
-        critic_obs = {key: obs[key].flatten(0, 1) for key in STATE_OBS_KEYS}
-        values = self.critic_output(critic_obs).view(n_steps, -1)
-        map_reconstruction = self.decode_map(th.stack(map_states))
         return SequenceEvaluation(
             values=values,
             log_prob=log_prob,

@@ -1,0 +1,169 @@
+"""The training hot path: host syncs per minibatch, unvalidated Gaussians, ValueNorm without tensor branches, the
+GRU equations of the autocast path, and bf16 autocast (validated, saved, and the same in rollouts and replay)."""
+
+import collections
+import os
+import sys
+
+import numpy as np
+import pytest
+import torch as th
+from torch.overrides import TorchFunctionMode
+
+from sb3_latentswarm import LatentSwarmPPO, SwarmConfig
+from sb3_latentswarm.common.value_norm import ValueNorm
+from sb3_latentswarm.envs import make_vec_env
+from sb3_latentswarm.latent_ppo.policies import gru_cell
+
+SMALL = SwarmConfig(n_agents=3, grid_width=10, grid_height=10, max_steps=7, num_obstacles=5, p_fail=0.5)
+TINY_POLICY = dict(latent_dim=8, predictor_hidden=16, decoder_hidden=16, critic_hidden=16, actor_hidden=16)
+PAPER_SIZED_POLICY = dict(latent_dim=512, predictor_hidden=256, decoder_hidden=256, critic_hidden=256, actor_hidden=64)
+SYNC_METHODS = {"item", "__float__", "__bool__", "__int__", "__index__", "tolist", "cpu", "numpy"}
+
+
+class HostReads(TorchFunctionMode):
+    """Counts reads of tensor values by the host outside ``torch.optim`` (Adam's step counters live on the host)."""
+
+    def __init__(self):
+        super().__init__()
+        self.count = collections.Counter()
+
+    def __torch_function__(self, func, types, args=(), kwargs=None):
+        name = getattr(func, "__name__", "")
+        if name in SYNC_METHODS:
+            filename = sys._getframe(1).f_code.co_filename
+            if f"torch{os.sep}optim{os.sep}" not in filename:
+                self.count[name] += 1
+        return func(*args, **(kwargs or {}))
+
+
+class _NoCallback:
+    def on_rollout_start(self):
+        pass
+
+    def on_rollout_end(self):
+        pass
+
+    def update_locals(self, _):
+        pass
+
+    def on_step(self):
+        return True
+
+
+def collected_model(policy_kwargs=TINY_POLICY, **kwargs):
+    params = dict(n_steps=20, chunk_length=5, batch_size=30, n_epochs=2, policy_kwargs=policy_kwargs, seed=0)
+    params.update(kwargs)
+    model = LatentSwarmPPO("LatentSwarmPolicy", make_vec_env(2, config=SMALL, seed=0), **params)
+    model.learn(total_timesteps=1, log_interval=None)  # sets up the logger and env, collects one rollout, trains once
+    model.collect_rollouts(model.env, _NoCallback(), model.rollout_buffer, model.n_steps)
+    return model
+
+
+def replay_error(model):
+    """The largest |log pi| difference between the rollout's stored log-probs and their replay in training."""
+    with th.no_grad():
+        return max(
+            (model.policy.evaluate_sequences(b.observations, b.actions, b.latent_state, b.episode_starts).log_prob
+             - b.old_log_prob).abs().max().item()
+            for b in model.rollout_buffer.get(model.batch_size)
+        )
+
+
+def test_gru_cell_is_torch_grucell():
+    th.manual_seed(0)
+    cell = th.nn.GRUCell(20, 16)
+    inputs, hidden = th.randn(6, 20, requires_grad=True), th.randn(6, 16, requires_grad=True)
+    expected, got = cell(inputs, hidden), gru_cell(inputs, hidden, cell)
+    th.testing.assert_close(got, expected, atol=1e-6, rtol=0)
+    weights = th.randn(6, 16)
+    grads_expected = th.autograd.grad((expected * weights).sum(), [inputs, hidden, *cell.parameters()])
+    grads_got = th.autograd.grad((got * weights).sum(), [inputs, hidden, *cell.parameters()])
+    for g_expected, g_got in zip(grads_expected, grads_got):
+        th.testing.assert_close(g_got, g_expected, atol=1e-6, rtol=0)
+
+
+@pytest.mark.parametrize("autocast", [None, "bf16"])
+def test_replayed_log_probs_match_the_rollout_under_the_same_autocast(autocast):
+    model = collected_model(autocast=autocast)
+    assert model.policy.autocast == autocast
+    assert replay_error(model) < 1e-5
+    if autocast is not None:  # the rollout did run in bf16: a float32 replay of the same data differs
+        model.policy.autocast = None
+        assert replay_error(model) > 1e-5
+
+
+def test_replayed_log_probs_match_the_rollout_at_the_paper_latent_size():
+    model = collected_model(policy_kwargs=PAPER_SIZED_POLICY, n_epochs=1)
+    assert model.policy.latent_dim == 512
+    assert replay_error(model) < 1e-5
+
+
+def test_train_reads_the_device_once_per_minibatch():
+    model = collected_model(n_epochs=3)
+    n_minibatches = 3 * len(list(model.rollout_buffer.get(model.batch_size)))
+    with HostReads() as reads:
+        model.train()
+    # one finiteness check per minibatch; per epoch one read of the statistics; per update a few for the logs
+    per_update = 3 * 2 + 6
+    assert sum(reads.count.values()) <= n_minibatches + per_update, reads.count
+    assert n_minibatches >= 12  # the bound above would fail with the former ~17 reads per minibatch
+
+
+def test_gaussians_are_built_without_argument_validation():
+    for distribution in ("gaussian", "squashed_gaussian"):
+        model = collected_model(policy_kwargs={**TINY_POLICY, "action_distribution": distribution}, n_epochs=1)
+        policy = model.policy
+        dist = policy.action_distribution(th.zeros(4, policy.task_dim))
+        assert dist.distribution._validate_args is False
+        assert th.distributions.Distribution._validate_args  # the global default is left alone
+        with HostReads() as reads:
+            dist.log_prob(th.zeros(4, policy.action_dim))
+        assert sum(reads.count.values()) == 0
+
+
+def test_value_norm_reads_no_tensor_on_the_host():
+    norm = ValueNorm(beta=0.9)
+    values = th.linspace(-3.0, 5.0, 11)
+    with HostReads() as reads:
+        mean, var = norm.mean_var()
+        assert th.equal(norm.normalize(values), values)  # before any update: mean 0, variance 1
+        norm.update(values * 10.0)
+        round_trip = norm.denormalize(norm.normalize(values))
+    assert sum(reads.count.values()) == 0
+    assert (mean.item(), var.item()) == (0.0, 1.0)
+    th.testing.assert_close(round_trip, values)
+    th.testing.assert_close(norm.mean_var()[0], (values * 10.0).mean())
+
+
+def test_autocast_is_validated_saved_and_loaded(tmp_path):
+    with pytest.raises(ValueError, match=r"autocast \(None: float32\) must be one of None, 'bf16'; got 'fp16'"):
+        LatentSwarmPPO("LatentSwarmPolicy", make_vec_env(2, config=SMALL, seed=0), autocast="fp16")
+    model = LatentSwarmPPO("LatentSwarmPolicy", make_vec_env(2, config=SMALL, seed=0), n_steps=20, chunk_length=5,
+                           batch_size=30, policy_kwargs=TINY_POLICY, autocast="bf16", seed=0)
+    model.save(tmp_path / "bf16.zip")
+    loaded = LatentSwarmPPO.load(tmp_path / "bf16.zip", device="cpu")
+    assert loaded.autocast == "bf16" and loaded.policy.autocast == "bf16"
+    assert LatentSwarmPPO.load(tmp_path / "bf16.zip", device="cpu", autocast=None).policy.autocast is None
+    obs = {key: np.asarray(value) for key, value in model.env.reset().items()}
+    actions, _ = loaded.policy.predict(obs, deterministic=True)
+    expected, _ = model.policy.predict(obs, deterministic=True)
+    np.testing.assert_array_equal(actions, expected)
+    with pytest.raises(ValueError, match="autocast must be one of"):
+        model.policy.autocast = "float16"
+
+
+def test_minibatch_benchmark_counts_ops_and_syncs_on_smoke():
+    import importlib.util
+    import pathlib
+
+    path = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "minibatch_ops.py"
+    spec = importlib.util.spec_from_file_location("minibatch_ops", path)
+    benchmark = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(benchmark)
+    rows = benchmark.measure("smoke", [None, "bf16"], minibatches=2, repeats=1)
+    assert [row["autocast"] for row in rows] == ["none", "bf16"]
+    for row in rows:
+        assert row["ops"] > 100 and row["cpu_s"] > 0 and row["replay"] < 1e-5
+        # one finiteness read per minibatch, the per-epoch and per-update reads shared out over the 2 minibatches
+        assert 1 <= row["syncs"] <= 8, row["sync_sites"]

@@ -355,7 +355,7 @@ def _evaluate_and_print(
     config, episodes, seed = preset.config, preset.eval_episodes, _eval_seed(args)
     seeds = seed_range(seed, episodes)
     progress_bar = sys.stderr.isatty() and not args.no_progress
-    policy_kwargs = dict(
+    policy_kwargs: dict[str, Any] = dict(
         n_episodes=episodes, seed=seed, config=config, deterministic=not args.stochastic, progress_bar=progress_bar
     )
     frames = [evaluate_conditions(model, conditions=CONDITIONS, p_fail=config.p_fail, **policy_kwargs)]

@@ -12,10 +12,10 @@ import if torch is already loaded: see :mod:`sb3_latentswarm.common.threads` for
 
 from __future__ import annotations
 
-import importlib
 import sys
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+from sb3_latentswarm._lazy import lazy_exports
 from sb3_latentswarm.version import __version__
 
 # public name -> the module that defines it
@@ -44,16 +44,7 @@ if TYPE_CHECKING:
     from sb3_latentswarm.latent_ppo import LatentSwarmPolicy, LatentSwarmPPO
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _EXPORTS:
-        raise AttributeError(f"module 'sb3_latentswarm' has no attribute {name!r}")
-    value = getattr(importlib.import_module(_EXPORTS[name]), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted([*globals(), *_EXPORTS])
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 
 
 if "torch" in sys.modules:

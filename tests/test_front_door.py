@@ -58,6 +58,25 @@ def test_public_names_load_on_first_use():
         sb3_latentswarm.LatentPPO  # noqa: B018
 
 
+def test_common_names_load_on_first_use_through_the_same_mechanism():
+    code = (
+        "import sys\n"
+        "import sb3_latentswarm.common as common\n"
+        "print('torch' in sys.modules, sorted(common.__all__) == sorted(n for n in dir(common) if n in common.__all__))\n"
+        "from sb3_latentswarm.common.value_norm import ValueNorm\n"
+        "print(common.ValueNorm is ValueNorm, 'ValueNorm' in vars(common))\n"
+        "try:\n"
+        "    common.ValueNormalizer\n"
+        "except AttributeError as error:\n"
+        "    print(error)\n"
+    )
+    assert run_python(code).splitlines() == [
+        "False True",
+        "True True",
+        "module 'sb3_latentswarm.common' has no attribute 'ValueNormalizer'",
+    ]
+
+
 def test_the_thread_default_is_applied_once_so_a_later_choice_is_kept():
     code = (
         "import torch\n"

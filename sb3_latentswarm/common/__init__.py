@@ -6,8 +6,9 @@ The names are loaded on first use (PEP 562), so that importing a torch-free modu
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from sb3_latentswarm._lazy import lazy_exports
 
 _EXPORTS = {
     "SwarmRolloutBuffer": "sb3_latentswarm.common.buffers",
@@ -25,16 +26,7 @@ if TYPE_CHECKING:
     from sb3_latentswarm.common.value_norm import ValueNorm
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _EXPORTS:
-        raise AttributeError(f"module 'sb3_latentswarm.common' has no attribute {name!r}")
-    value = getattr(importlib.import_module(_EXPORTS[name]), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted([*globals(), *_EXPORTS])
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 
 
 __all__ = [

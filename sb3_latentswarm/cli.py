@@ -15,11 +15,12 @@ import hashlib
 import json
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from sb3_latentswarm.presets import PRESETS, Preset, get_preset, override_targets
+from sb3_latentswarm.common.checks import check_int
+from sb3_latentswarm.presets import PRESETS, Preset, get_preset, override_targets, unknown_settings_message
 from sb3_latentswarm.version import __version__
 
 
@@ -42,42 +43,48 @@ def parse_overrides(pairs: list[str]) -> dict[str, Any]:
     (``SwarmConfig`` fields, ``n_envs``/``eval_episodes``, ``LatentSwarmPPO`` and ``LatentSwarmPolicy`` arguments);
     :meth:`Preset.with_overrides <sb3_latentswarm.presets.Preset.with_overrides>` routes them and validates.
     """
-    targets = override_targets()
-    valid = {name for names in targets.values() for name in names}
+    valid = {name for names in override_targets().values() for name in names}
     overrides: dict[str, Any] = {}
     for pair in pairs:
         if "=" not in pair:
             raise ValueError(f"--set expects NAME=VALUE, got {pair!r}")
         name, raw = pair.split("=", 1)
         if name not in valid:
-            listing = "; ".join(f"{target}: {', '.join(names)}" for target, names in targets.items())
-            raise ValueError(f"--set: unknown setting {name!r}; valid settings are {listing}")
+            raise ValueError(f"--set: {unknown_settings_message([name])}")
         if name in overrides:
             raise ValueError(f"--set {name} given twice ({overrides[name]!r} and {raw!r})")
         overrides[name] = _literal(raw)
     return overrides
 
 
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
+def int_at_least(low: int) -> Callable[[str], int]:
+    """An argparse ``type`` that reads an integer >= ``low`` (``int_at_least(1)`` for counts, ``int_at_least(0)``
+    where 0 means "never"), checked by :func:`~sb3_latentswarm.common.checks.check_int`.
+
+    :return: the parser, which raises ``argparse.ArgumentTypeError`` (argparse prefixes the option's name)
+    """
+
+    def parse(text: str) -> int:
+        try:
+            return check_int("the value", int(text), low=low)
+        except ValueError:  # not an integer (int), or one below low (check_int)
+            raise argparse.ArgumentTypeError(f"expected an int >= {low}, got {text!r}") from None
+
+    parse.__name__ = f"int_at_least_{low}"
+    return parse
 
 
-def non_negative_int(text: str) -> int:
-    """argparse type: an integer >= 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
+class _ListSettings(argparse.Action):
+    """``--list-settings``: print :func:`~sb3_latentswarm.presets.format_settings` and exit, as ``--help`` does."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str = argparse.SUPPRESS, help: str | None = None) -> None:
+        super().__init__(option_strings, dest=dest, default=argparse.SUPPRESS, nargs=0, help=help)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option_string=None):
+        from sb3_latentswarm.presets import format_settings
+
+        print(format_settings())
+        parser.exit()
 
 
 def _preset_from_args(args: argparse.Namespace, model: Any = None, training: bool = False) -> Preset:
@@ -174,7 +181,6 @@ def command_train(args: argparse.Namespace) -> int:
         read_checkpoint_state,
     )
     from sb3_latentswarm.common.atomic import probe_writable, write_json
-    from sb3_latentswarm.common.checks import check_int
     from sb3_latentswarm.envs import make_vec_env
     from sb3_latentswarm.latent_ppo import LatentSwarmPPO
     from sb3_latentswarm.latent_ppo.latent_ppo import validate_algorithm_kwargs
@@ -644,8 +650,9 @@ def build_parser() -> argparse.ArgumentParser:
             metavar="NAME=VALUE",
             help="override a setting; repeatable, all count. SwarmConfig fields (p_fail=0.5), n_envs, eval_episodes, "
             "and for train LatentSwarmPPO / LatentSwarmPolicy arguments (learning_rate=1e-4, n_steps=100, "
-            "latent_dim=32); values are Python literals, validated as in Python",
+            "latent_dim=32); values are Python literals, validated as in Python; --list-settings lists the names",
         )
+        p.add_argument("--list-settings", action=_ListSettings, help="print every --set name, by where it goes, and exit")
         p.add_argument(
             "--seed",
             type=int,
@@ -692,7 +699,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     train = sub.add_parser("train", help="train LatentSwarmPPO on a preset")
     add_common(train, "demo")
-    train.add_argument("--total-timesteps", type=positive_int, default=None, help="override the preset's budget (agent-steps)")
+    train.add_argument(
+        "--total-timesteps", type=int_at_least(1), default=None, help="override the preset's budget (agent-steps)"
+    )
     train.add_argument(
         "--output",
         default=None,
@@ -700,7 +709,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     train.add_argument(
         "--save-freq",
-        type=non_negative_int,
+        type=int_at_least(0),
         default=None,
         metavar="AGENT_STEPS",
         help="agent-steps between checkpoints in OUTPUT/checkpoints/ (default: about 5 %% of the budget, in whole "
@@ -709,7 +718,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     train.add_argument(
         "--keep-checkpoints",
-        type=positive_int,
+        type=int_at_least(1),
         default=None,
         metavar="K",
         help="keep the newest K checkpoints (default 3; with --resume, the run's)",
@@ -742,7 +751,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_common(evaluate, None)
     evaluate.add_argument("--model", required=True, help="a LatentSwarmPPO model.zip (e.g. runs/demo/model.zip)")
     add_trust_pickle(evaluate)
-    evaluate.add_argument("--episodes", type=positive_int, default=None, help="episodes per row (default: the preset's)")
+    evaluate.add_argument("--episodes", type=int_at_least(1), default=None, help="episodes per row (default: the preset's)")
     add_eval_seed(evaluate)
     evaluate.add_argument("--p-fail-sweep", action="store_true", help="also run the p_f sweep of Table I (right)")
     evaluate.add_argument(
@@ -767,7 +776,7 @@ def build_parser() -> argparse.ArgumentParser:
         "full_comm, no_comm, no_predictor, no_memory, ...)",
     )
     render.add_argument("--output", default="episode.gif", help="file ending in .gif or .mp4 (needs imageio-ffmpeg)")
-    render.add_argument("--fps", type=positive_int, default=10, help="frames per second of the animation (default 10)")
+    render.add_argument("--fps", type=int_at_least(1), default=10, help="frames per second of the animation (default 10)")
     render.set_defaults(func=command_render)
 
     sweep = sub.add_parser("sweep", help="train seeds x variants (x a grid) on Ray Tune; across-seed intervals (extra sweep)")
@@ -793,7 +802,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME=FIELD=V,...",
         help="an extra evaluation cell: config overrides, optionally conditions=C1+C2 (default: every condition)",
     )
-    sweep.add_argument("--eval-episodes", type=positive_int, default=None, help="episodes per cell (default: the preset's)")
+    sweep.add_argument("--eval-episodes", type=int_at_least(1), default=None, help="episodes per cell (default: the preset's)")
     sweep.add_argument("--stochastic", action="store_true", help="evaluate with sampled actions (default: the mean action)")
     sweep.add_argument("--address", default=None, help="Ray cluster to attach to (default: start Ray on this machine)")
     sweep.add_argument(

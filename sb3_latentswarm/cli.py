@@ -171,6 +171,7 @@ def command_train(args: argparse.Namespace) -> int:
     ``--resume`` continues the newest checkpoint in ``--output``; SIGINT / SIGTERM write a checkpoint and exit with
     128 + the signal number (see ``docs/long_runs.md``).
     """
+    from sb3_latentswarm.callbacks import RolloutProgressBarCallback, whole_rollouts
     from sb3_latentswarm.checkpoints import (
         StopOnSignal,
         SwarmCheckpointCallback,
@@ -265,14 +266,17 @@ def command_train(args: argparse.Namespace) -> int:
     resume_step = int(state["num_timesteps"]) if state else None
     model.set_logger(configure_run_logger(output, args.verbose, tensorboard_run, resume_step))
     remaining = total - model.num_timesteps
+    per_rollout = model.n_steps * env.num_envs
+    # learn() collects whole rollouts: the run ends at the budget rounded up to them (the progress bar's total)
+    end = model.num_timesteps + (whole_rollouts(remaining, per_rollout) if remaining > 0 else 0)
+    rounded = f" ({total:,} rounded up to whole rollouts of {per_rollout:,})" if end != total else ""
     if state:
-        print(f"Resuming {latest} at {model.num_timesteps:,} of {total:,} agent-steps")
+        print(f"Resuming {latest} at {model.num_timesteps:,} of {end:,} agent-steps{rounded}")
     else:
         overrides = f" with {' '.join(args.set)}" if args.set else ""
-        updates = -(-total // (model.n_steps * env.num_envs))
         print(
-            f"Training preset '{preset.name}'{overrides} for {total:,} agent-steps: {preset.n_envs} swarms of "
-            f"{preset.config.n_agents}, n_steps {model.n_steps}, {updates} updates, seed {args.seed}"
+            f"Training preset '{preset.name}'{overrides} for {end:,} agent-steps{rounded}: {preset.n_envs} swarms of "
+            f"{preset.config.n_agents}, n_steps {model.n_steps}, {end // per_rollout} updates, seed {args.seed}"
         )
     print(f"Checkpoints every {save_freq:,} agent-steps in {checkpoint_dir} (keeping {args.keep_checkpoints})")
     start = time.perf_counter()
@@ -280,12 +284,12 @@ def command_train(args: argparse.Namespace) -> int:
         checkpoints = SwarmCheckpointCallback(
             save_freq, checkpoint_dir, keep=args.keep_checkpoints, settings=run_settings, stop=stop, verbose=args.verbose
         )
+        bar = [RolloutProgressBarCallback()] if not args.no_progress and sys.stderr.isatty() else []
         try:
             if remaining > 0:
                 model.learn(
                     total_timesteps=remaining,
-                    callback=checkpoints,
-                    progress_bar=not args.no_progress and sys.stderr.isatty(),
+                    callback=[checkpoints, *bar],
                     tb_log_name=tb_log_name,
                     reset_num_timesteps=not state,
                 )

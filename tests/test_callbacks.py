@@ -45,3 +45,28 @@ def test_swarm_eval_callback_rejects_bad_arguments():
         SwarmEvalCallback(eval_freq=0)
     with pytest.raises(ValueError, match="Unknown condition"):
         SwarmEvalCallback(eval_freq=10, condition="everything")
+
+
+def test_rollout_progress_bar_ends_at_100_percent_of_whole_rollouts(tmp_path):
+    from sb3_latentswarm.callbacks import RolloutProgressBarCallback, whole_rollouts
+
+    model = LatentSwarmPPO(
+        "LatentSwarmPolicy",
+        make_vec_env(1, config=SMALL, seed=0),
+        n_steps=10,
+        chunk_length=5,
+        batch_size=30,
+        n_epochs=1,
+        policy_kwargs=TINY_POLICY,
+        seed=0,
+    )
+    model.train = lambda *args: None  # only the rollout counts matter here
+    per_rollout = 10 * 1 * 3
+    assert whole_rollouts(2 * per_rollout + 1, per_rollout) == 3 * per_rollout
+    assert whole_rollouts(per_rollout, per_rollout) == per_rollout
+    bar = RolloutProgressBarCallback()
+    model.learn(total_timesteps=2 * per_rollout + 1, callback=bar)  # SB3's bar would end at 90/61
+    assert model.num_timesteps == 3 * per_rollout
+    assert (bar.pbar.n, bar.pbar.total) == (3 * per_rollout, 3 * per_rollout)
+    with pytest.raises(ValueError, match="per_rollout must be an int in"):
+        whole_rollouts(10, 0)

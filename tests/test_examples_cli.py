@@ -166,6 +166,14 @@ def test_every_set_counts_and_reaches_config_algorithm_and_policy(tmp_path):
     assert preset.n_envs == 3 and (preset.algo_kwargs["n_steps"], preset.algo_kwargs["chunk_length"]) == (40, 10)
 
 
+def test_train_states_the_budget_rounded_up_to_whole_rollouts(tmp_path, capsys):
+    # smoke: 2 swarms of 3 UAVs, n_steps 20: a rollout is 120 agent-steps, so 130 trains two of them
+    assert main(["train", "--preset", "smoke", "--output", str(tmp_path), "--no-progress", "--total-timesteps", "130"]) == 0
+    out = capsys.readouterr().out
+    assert "for 240 agent-steps (130 rounded up to whole rollouts of 120): 2 swarms of 3, n_steps 20, 2 updates" in out
+    assert LatentSwarmPPO.load(tmp_path / "model.zip").num_timesteps == 240
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [

@@ -7,7 +7,7 @@ and ``LatentSwarmPPO``, a subclass of sb3-contrib's ``RecurrentPPO``.
 The public names below are loaded on first use (PEP 562), so that ``import sb3_latentswarm`` and
 ``sb3-latentswarm --help`` do not pay for importing torch and Stable-Baselines3. The package sets torch to one CPU
 thread (unless ``OMP_NUM_THREADS`` or ``MKL_NUM_THREADS`` is set) once, when it first loads torch-using code, or at
-import if torch is already loaded: see :mod:`sb3_latentswarm.common.threads` for the measurement behind it.
+import if torch is already loaded: see :mod:`sb3_latentswarm.threads` for the measurement behind it.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ _EXPORTS = {
     "link_probability": "sb3_latentswarm.channel",
     "StepSchedule": "sb3_latentswarm.common.schedules",
     "paper_learning_rate": "sb3_latentswarm.common.schedules",
-    "apply_default_torch_threads": "sb3_latentswarm.common.threads",
+    "apply_default_torch_threads": "sb3_latentswarm.threads",
     "SwarmConfig": "sb3_latentswarm.config",
     "SwarmReconEnv": "sb3_latentswarm.envs",
     "make_vec_env": "sb3_latentswarm.envs",
@@ -48,7 +48,7 @@ __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 
 
 if "torch" in sys.modules:
-    from sb3_latentswarm.common.threads import apply_default_torch_threads_once
+    from sb3_latentswarm.threads import apply_default_torch_threads_once
 
     apply_default_torch_threads_once()
 

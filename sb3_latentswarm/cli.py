@@ -675,7 +675,7 @@ def build_parser() -> argparse.ArgumentParser:
             type=int,
             default=0,
             help="torch CPU threads (default 0: the package default of one thread, the fastest for these small "
-            "recurrent nets on a loaded CPU; see sb3_latentswarm.common.threads)",
+            "recurrent nets on a loaded CPU; see sb3_latentswarm.threads)",
         )
         p.add_argument("--no-progress", action="store_true", help="no progress bars (shown on a terminal otherwise)")
         p.add_argument(

@@ -243,8 +243,8 @@ def train_and_evaluate(
         read_checkpoint_state,
     )
     from sb3_latentswarm.common.atomic import atomic_path, probe_writable, write_json
-    from sb3_latentswarm.common.run_record import machine_summary
     from sb3_latentswarm.envs import make_vec_env
+    from sb3_latentswarm.experiments.run_record import machine_summary
     from sb3_latentswarm.latent_ppo import LatentSwarmPPO
 
     spec = trial["spec"]

@@ -18,21 +18,15 @@ from typing import TYPE_CHECKING
 from sb3_latentswarm._lazy import lazy_exports
 from sb3_latentswarm.version import __version__
 
-# public name -> the module that defines it
+# the module that defines them -> public names (the same lines as the TYPE_CHECKING block below)
 _EXPORTS = {
-    "A2AChannel": "sb3_latentswarm.channel",
-    "link_probability": "sb3_latentswarm.channel",
-    "StepSchedule": "sb3_latentswarm.common.schedules",
-    "paper_learning_rate": "sb3_latentswarm.common.schedules",
-    "apply_default_torch_threads": "sb3_latentswarm.threads",
-    "SwarmConfig": "sb3_latentswarm.config",
-    "SwarmReconEnv": "sb3_latentswarm.envs",
-    "make_vec_env": "sb3_latentswarm.envs",
-    "parallel_env": "sb3_latentswarm.envs",
-    "evaluate": "sb3_latentswarm.evaluation",
-    "summarize": "sb3_latentswarm.evaluation",
-    "LatentSwarmPolicy": "sb3_latentswarm.latent_ppo",
-    "LatentSwarmPPO": "sb3_latentswarm.latent_ppo",
+    "sb3_latentswarm.channel": ("A2AChannel", "link_probability"),
+    "sb3_latentswarm.common.schedules": ("StepSchedule", "paper_learning_rate"),
+    "sb3_latentswarm.threads": ("apply_default_torch_threads",),
+    "sb3_latentswarm.config": ("SwarmConfig",),
+    "sb3_latentswarm.envs": ("SwarmReconEnv", "make_vec_env", "parallel_env"),
+    "sb3_latentswarm.evaluation": ("evaluate", "summarize"),
+    "sb3_latentswarm.latent_ppo": ("LatentSwarmPolicy", "LatentSwarmPPO"),
 }
 
 if TYPE_CHECKING:

@@ -10,13 +10,11 @@ from typing import TYPE_CHECKING
 
 from sb3_latentswarm._lazy import lazy_exports
 
-_EXPORTS = {
-    "SwarmRolloutBuffer": "sb3_latentswarm.common.buffers",
-    "StepSchedule": "sb3_latentswarm.common.schedules",
-    "paper_learning_rate": "sb3_latentswarm.common.schedules",
-    "LatentState": "sb3_latentswarm.common.type_aliases",
-    "SwarmRolloutBufferSamples": "sb3_latentswarm.common.type_aliases",
-    "ValueNorm": "sb3_latentswarm.common.value_norm",
+_EXPORTS = {  # the module that defines them -> public names
+    "sb3_latentswarm.common.buffers": ("SwarmRolloutBuffer",),
+    "sb3_latentswarm.common.schedules": ("StepSchedule", "paper_learning_rate"),
+    "sb3_latentswarm.common.type_aliases": ("LatentState", "SwarmRolloutBufferSamples"),
+    "sb3_latentswarm.common.value_norm": ("ValueNorm",),
 }
 
 if TYPE_CHECKING:

@@ -781,6 +781,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     sweep = sub.add_parser("sweep", help="train seeds x variants (x a grid) on Ray Tune; across-seed intervals (extra sweep)")
     sweep.add_argument("--preset", required=True, choices=sorted(PRESETS), help="env, algorithm settings and budget")
+    sweep.add_argument("--list-settings", action=_ListSettings, help="print every --set / --grid name, by target, and exit")
     sweep.add_argument("--seeds", type=int, required=True, help="training seeds 0 .. K-1 per variant and grid point")
     sweep.add_argument(
         "--variant",

@@ -75,7 +75,7 @@ class Preset:
         ``SwarmConfig`` fields are validated here by ``SwarmConfig`` itself; ``LatentSwarmPPO`` and
         ``LatentSwarmPolicy`` arguments are validated by their constructors when the model is built.
 
-        :raise TypeError: for a name that is none of those, listing the valid names
+        :raise TypeError: for a name that is none of those, naming its closest valid names (:func:`unknown_settings_message`)
         """
         targets = override_targets()
         unknown = sorted(set(overrides) - {name for names in targets.values() for name in names})

@@ -32,6 +32,7 @@ def test_reproduce_table1_help_describes_every_option():
     assert "default: runs/table1_PRESET" in options and "Monte Carlo runs per condition" in options
 
 
+@pytest.mark.slow  # trains and evaluates every Table I cell in a subprocess: 20 s at load 5
 def test_reproduce_table1_smoke(tmp_path):
     # run from another folder without --output: the results go under runs/, never into docs/results/
     result = run_script(str(ROOT / "examples" / "reproduce_table1.py"), "--preset", "smoke", cwd=tmp_path)
@@ -326,6 +327,7 @@ def test_importing_the_package_applies_the_thread_default_unless_the_environment
     assert int(result.stdout) == expected
 
 
+@pytest.mark.slow  # trains and evaluates in a subprocess: 9 s at load 5
 def test_dropout_diagnostics_smoke(tmp_path):
     model = ROOT / "docs/results/coordination/trials/proposed-seed0/model.zip"
     result = run_script(

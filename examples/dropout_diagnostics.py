@@ -26,7 +26,6 @@ import pandas as pd
 import torch as th
 
 from sb3_latentswarm import LatentSwarmPPO
-from sb3_latentswarm.common.run_record import git_commit, write_run_record
 from sb3_latentswarm.evaluation import (
     CONDITION_LABELS,
     DEPTH_BINS,
@@ -37,6 +36,7 @@ from sb3_latentswarm.evaluation import (
     seed_range,
     to_markdown,
 )
+from sb3_latentswarm.experiments.run_record import git_commit, write_run_record
 
 SUBSTITUTE_CONDITIONS = ("proposed", "no_predictor", "hold_last", "own_message")
 """The conditions that differ only in the dropout substitute (for a model trained with the predictor)."""

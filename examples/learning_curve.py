@@ -26,7 +26,6 @@ import pandas as pd
 import torch as th
 
 from sb3_latentswarm import LatentSwarmPPO
-from sb3_latentswarm.common.run_record import git_commit, write_run_record
 from sb3_latentswarm.evaluation import (
     CONDITION_LABELS,
     CONDITIONS,
@@ -35,6 +34,7 @@ from sb3_latentswarm.evaluation import (
     summarize,
     to_markdown,
 )
+from sb3_latentswarm.experiments.run_record import git_commit, write_run_record
 from sb3_latentswarm.presets import PRESETS, get_preset
 
 ACTIONS = {"mean": True, "sampled": False}  # label -> deterministic

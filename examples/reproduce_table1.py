@@ -46,7 +46,6 @@ from sb3_latentswarm.baselines import (
     train_independent_ppo,
 )
 from sb3_latentswarm.common.atomic import atomic_path, probe_writable, write_json, write_text
-from sb3_latentswarm.common.run_record import git_commit, write_run_record
 from sb3_latentswarm.envs import make_vec_env
 from sb3_latentswarm.evaluation import (
     CONDITION_LABELS,
@@ -61,6 +60,7 @@ from sb3_latentswarm.evaluation import (
     summarize,
     to_markdown,
 )
+from sb3_latentswarm.experiments.run_record import git_commit, write_run_record
 from sb3_latentswarm.presets import PRESETS, get_preset
 
 ACTION_MODES = ("both", "sampled", "mean")
@@ -93,7 +93,7 @@ class Args:
     )
     model_notes: str | None = option(None, "how a --model was trained, written into run.md next to its path")
     device: str = option("auto", "torch device: auto, cpu or cuda")
-    threads: int = option(0, "torch CPU threads (0: the package default, one; see sb3_latentswarm.common.threads)")
+    threads: int = option(0, "torch CPU threads (0: the package default, one; see sb3_latentswarm.threads)")
 
 
 def parse_args() -> Args:

@@ -20,8 +20,8 @@ import pandas as pd
 import torch as th
 
 from sb3_latentswarm import LatentSwarmPPO
-from sb3_latentswarm.common.run_record import git_commit, write_run_record
 from sb3_latentswarm.evaluation import evaluate, summarize, to_markdown
+from sb3_latentswarm.experiments.run_record import git_commit, write_run_record
 from sb3_latentswarm.presets import PRESETS, get_preset
 
 SUBSTITUTES = {"proposed": "prediction", "no_predictor": "zero vector", "no_memory": "prediction, memory zeroed"}

@@ -20,8 +20,8 @@ import pandas as pd
 import torch as th
 
 from sb3_latentswarm import LatentSwarmPPO, make_vec_env
-from sb3_latentswarm.common.run_record import git_commit, write_run_record
 from sb3_latentswarm.evaluation import evaluate, to_markdown
+from sb3_latentswarm.experiments.run_record import git_commit, write_run_record
 from sb3_latentswarm.presets import PRESETS, get_preset
 
 HELD_OUT_SEED = 1_000_000

@@ -7,32 +7,26 @@ and ``LatentSwarmPPO``, a subclass of sb3-contrib's ``RecurrentPPO``.
 The public names below are loaded on first use (PEP 562), so that ``import sb3_latentswarm`` and
 ``sb3-latentswarm --help`` do not pay for importing torch and Stable-Baselines3. The package sets torch to one CPU
 thread (unless ``OMP_NUM_THREADS`` or ``MKL_NUM_THREADS`` is set) once, when it first loads torch-using code, or at
-import if torch is already loaded: see :mod:`sb3_latentswarm.common.threads` for the measurement behind it.
+import if torch is already loaded: see :mod:`sb3_latentswarm.threads` for the measurement behind it.
 """
 
 from __future__ import annotations
 
-import importlib
 import sys
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+from sb3_latentswarm._lazy import lazy_exports
 from sb3_latentswarm.version import __version__
 
-# public name -> the module that defines it
+# the module that defines them -> public names (the same lines as the TYPE_CHECKING block below)
 _EXPORTS = {
-    "A2AChannel": "sb3_latentswarm.channel",
-    "link_probability": "sb3_latentswarm.channel",
-    "StepSchedule": "sb3_latentswarm.common.schedules",
-    "paper_learning_rate": "sb3_latentswarm.common.schedules",
-    "apply_default_torch_threads": "sb3_latentswarm.common.threads",
-    "SwarmConfig": "sb3_latentswarm.config",
-    "SwarmReconEnv": "sb3_latentswarm.envs",
-    "make_vec_env": "sb3_latentswarm.envs",
-    "parallel_env": "sb3_latentswarm.envs",
-    "evaluate": "sb3_latentswarm.evaluation",
-    "summarize": "sb3_latentswarm.evaluation",
-    "LatentSwarmPolicy": "sb3_latentswarm.latent_ppo",
-    "LatentSwarmPPO": "sb3_latentswarm.latent_ppo",
+    "sb3_latentswarm.channel": ("A2AChannel", "link_probability"),
+    "sb3_latentswarm.common.schedules": ("StepSchedule", "paper_learning_rate"),
+    "sb3_latentswarm.threads": ("apply_default_torch_threads",),
+    "sb3_latentswarm.config": ("SwarmConfig",),
+    "sb3_latentswarm.envs": ("SwarmReconEnv", "make_vec_env", "parallel_env"),
+    "sb3_latentswarm.evaluation": ("evaluate", "summarize"),
+    "sb3_latentswarm.latent_ppo": ("LatentSwarmPolicy", "LatentSwarmPPO"),
 }
 
 if TYPE_CHECKING:
@@ -44,20 +38,11 @@ if TYPE_CHECKING:
     from sb3_latentswarm.latent_ppo import LatentSwarmPolicy, LatentSwarmPPO
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _EXPORTS:
-        raise AttributeError(f"module 'sb3_latentswarm' has no attribute {name!r}")
-    value = getattr(importlib.import_module(_EXPORTS[name]), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted([*globals(), *_EXPORTS])
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 
 
 if "torch" in sys.modules:
-    from sb3_latentswarm.common.threads import apply_default_torch_threads_once
+    from sb3_latentswarm.threads import apply_default_torch_threads_once
 
     apply_default_torch_threads_once()
 

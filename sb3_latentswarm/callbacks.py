@@ -1,5 +1,9 @@
 """Training callbacks that count in swarms and agent-steps.
 
+SB3's ``learn`` collects whole rollouts of ``n_steps * n_envs`` agent-steps while ``num_timesteps`` is below the
+budget, so a run ends past a budget that is not a multiple of a rollout; SB3's progress bar then ends past 100 %
+(2,880/2,000). :class:`RolloutProgressBarCallback` is SB3's bar with the total the run reaches.
+
 SB3's ``EvalCallback`` on a swarm VecEnv counts each swarm episode once per agent (every slot reports the end of the
 shared episode) and its ``eval_freq`` counts calls of ``on_step``, i.e. vec-env steps of ``n_envs * n_agents``
 agent-steps. :class:`SwarmEvalCallback` evaluates whole swarm episodes with :func:`~sb3_latentswarm.evaluation.evaluate`
@@ -9,14 +13,47 @@ and counts its frequency in agent-steps, SB3's ``num_timesteps``.
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 from typing import Any
 
-from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.callbacks import BaseCallback, ProgressBarCallback
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
 from sb3_latentswarm.common.checks import check_bool, check_float, check_int
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.evaluation import HELD_OUT_SEED, check_condition, evaluate
+
+
+def whole_rollouts(timesteps: int, per_rollout: int) -> int:
+    """The agent-steps ``learn(timesteps)`` runs: ``timesteps`` rounded up to whole rollouts.
+
+    :param timesteps: the budget passed to ``learn``, agent-steps (>= 1)
+    :param per_rollout: agent-steps per rollout, ``n_steps * env.num_envs`` (each vec-env slot is one agent)
+    :raise ValueError: for a value below 1
+    """
+    timesteps, per_rollout = check_int("timesteps", timesteps, low=1), check_int("per_rollout", per_rollout, low=1)
+    return -(-timesteps // per_rollout) * per_rollout
+
+
+class RolloutProgressBarCallback(ProgressBarCallback):
+    """SB3's ``ProgressBarCallback`` (tqdm + rich) whose total is the agent-steps an on-policy run reaches, so the bar
+    ends at 100 %: :func:`whole_rollouts` of the steps still to run. Pass it as ``callback`` instead of
+    ``progress_bar=True``.
+
+    ``sb3-latentswarm train`` shows it on a terminal.
+    """
+
+    def _on_training_start(self) -> None:
+        from tqdm import TqdmExperimentalWarning
+        from tqdm.rich import tqdm  # SB3's bar
+
+        remaining = self.locals["total_timesteps"] - self.model.num_timesteps
+        if isinstance(self.model, OnPolicyAlgorithm) and remaining > 0:  # off-policy runs keep SB3's total
+            remaining = whole_rollouts(remaining, self.model.n_steps * self.training_env.num_envs)
+        with warnings.catch_warnings():  # as SB3 does: tqdm calls its rich bar experimental
+            warnings.simplefilter("ignore", TqdmExperimentalWarning)
+            self.pbar = tqdm(total=remaining)  # built anew: tqdm_rich.reset(total=...) raises TypeError in tqdm 4.70
 
 
 def _check_folder(folder: Path) -> Path:

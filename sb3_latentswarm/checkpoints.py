@@ -102,7 +102,7 @@ def default_save_freq(total_timesteps: int, steps_per_update: int, fraction: flo
 # ---------------------------------------------------------------------------------------------- the run state
 def _rng_states() -> tuple[dict[str, Any], dict[str, np.ndarray], dict[str, th.Tensor]]:
     version, internal, gauss = random.getstate()
-    name, keys, pos, has_gauss, cached = np.random.get_state(legacy=True)  # type: ignore[misc]
+    name, keys, pos, has_gauss, cached = np.random.get_state(legacy=True)
     plain = {
         "python_random": {"version": version, "internal": list(internal), "gauss_next": gauss},
         "numpy_random": {"name": name, "pos": int(pos), "has_gauss": int(has_gauss), "cached_gaussian": float(cached)},
@@ -129,7 +129,7 @@ def _unwrap(env: VecEnv) -> tuple[VecMonitor | None, VecEnv]:
     while hasattr(env, "venv"):
         if isinstance(env, VecMonitor):
             monitor = env
-        env = env.venv  # type: ignore[attr-defined]
+        env = env.venv
     return monitor, env
 
 
@@ -146,9 +146,10 @@ def _env_state(env: VecEnv) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
         arrays["monitor_episode_lengths"] = np.asarray(monitor.episode_lengths)
     if isinstance(inner, BatchedSwarmVecEnv):
         core = inner.core
-        if any(rng is None for rng in core.rngs):
+        rngs = [rng for rng in core.rngs if rng is not None]
+        if len(rngs) < len(core.rngs):
             raise CheckpointError("the batched env has not been reset yet: there is no run state to save")
-        plain["swarm_rngs"] = [rng.bit_generator.state for rng in core.rngs]  # PCG64: plain dicts of ints
+        plain["swarm_rngs"] = [rng.bit_generator.state for rng in rngs]  # PCG64: plain dicts of ints
         plain["swarm_seeds"] = list(core.seeds)
         plain["pending_seed"] = inner._pending_seed
         plain["seeded"] = bool(inner._seeded)
@@ -227,7 +228,7 @@ def checkpoint_bytes(model: Any, settings: dict[str, Any] | None = None, extra: 
         "extra": extra or {},
     }
     npz, pth, out = io.BytesIO(), io.BytesIO(), io.BytesIO()
-    np.savez(npz, **arrays)
+    np.savez(npz, allow_pickle=False, **arrays)
     th.save(tensors, pth)
     with zipfile.ZipFile(out, "w", compression=zipfile.ZIP_STORED) as archive:
         archive.writestr("model.zip", model_file.getvalue())
@@ -524,11 +525,11 @@ class SwarmCheckpointCallback(BaseCallback):
         self._next_save = 0
 
     def _init_callback(self) -> None:
-        pending = getattr(self.model, "_pending_log_values", None) or {}
+        # what load_checkpoint left on the model, recorded once: taken off the model here
+        pending = vars(self.model).pop("_pending_log_values", None) or {}
         for key, value in pending.get("values", {}).items():
             excluded = pending.get("excluded", {}).get(key)
             self.logger.record(key, value, exclude=tuple(excluded) if excluded else None)
-        self.model._pending_log_values = {}
         self._next_save = self._following(self.num_timesteps)
         latest = latest_checkpoint(self.save_path)
         self._written_at = int(_NAME.match(latest.name).group(1)) if latest else None  # type: ignore[union-attr]

@@ -15,11 +15,12 @@ import hashlib
 import json
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from sb3_latentswarm.presets import PRESETS, Preset, get_preset, override_targets
+from sb3_latentswarm.common.checks import check_int
+from sb3_latentswarm.presets import PRESETS, Preset, get_preset, override_targets, unknown_settings_message
 from sb3_latentswarm.version import __version__
 
 
@@ -42,42 +43,48 @@ def parse_overrides(pairs: list[str]) -> dict[str, Any]:
     (``SwarmConfig`` fields, ``n_envs``/``eval_episodes``, ``LatentSwarmPPO`` and ``LatentSwarmPolicy`` arguments);
     :meth:`Preset.with_overrides <sb3_latentswarm.presets.Preset.with_overrides>` routes them and validates.
     """
-    targets = override_targets()
-    valid = {name for names in targets.values() for name in names}
+    valid = {name for names in override_targets().values() for name in names}
     overrides: dict[str, Any] = {}
     for pair in pairs:
         if "=" not in pair:
             raise ValueError(f"--set expects NAME=VALUE, got {pair!r}")
         name, raw = pair.split("=", 1)
         if name not in valid:
-            listing = "; ".join(f"{target}: {', '.join(names)}" for target, names in targets.items())
-            raise ValueError(f"--set: unknown setting {name!r}; valid settings are {listing}")
+            raise ValueError(f"--set: {unknown_settings_message([name])}")
         if name in overrides:
             raise ValueError(f"--set {name} given twice ({overrides[name]!r} and {raw!r})")
         overrides[name] = _literal(raw)
     return overrides
 
 
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
+def int_at_least(low: int) -> Callable[[str], int]:
+    """An argparse ``type`` that reads an integer >= ``low`` (``int_at_least(1)`` for counts, ``int_at_least(0)``
+    where 0 means "never"), checked by :func:`~sb3_latentswarm.common.checks.check_int`.
+
+    :return: the parser, which raises ``argparse.ArgumentTypeError`` (argparse prefixes the option's name)
+    """
+
+    def parse(text: str) -> int:
+        try:
+            return check_int("the value", int(text), low=low)
+        except ValueError:  # not an integer (int), or one below low (check_int)
+            raise argparse.ArgumentTypeError(f"expected an int >= {low}, got {text!r}") from None
+
+    parse.__name__ = f"int_at_least_{low}"
+    return parse
 
 
-def non_negative_int(text: str) -> int:
-    """argparse type: an integer >= 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
+class _ListSettings(argparse.Action):
+    """``--list-settings``: print :func:`~sb3_latentswarm.presets.format_settings` and exit, as ``--help`` does."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str = argparse.SUPPRESS, help: str | None = None) -> None:
+        super().__init__(option_strings, dest=dest, default=argparse.SUPPRESS, nargs=0, help=help)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option_string=None):
+        from sb3_latentswarm.presets import format_settings
+
+        print(format_settings())
+        parser.exit()
 
 
 def _preset_from_args(args: argparse.Namespace, model: Any = None, training: bool = False) -> Preset:
@@ -164,6 +171,7 @@ def command_train(args: argparse.Namespace) -> int:
     ``--resume`` continues the newest checkpoint in ``--output``; SIGINT / SIGTERM write a checkpoint and exit with
     128 + the signal number (see ``docs/long_runs.md``).
     """
+    from sb3_latentswarm.callbacks import RolloutProgressBarCallback, whole_rollouts
     from sb3_latentswarm.checkpoints import (
         StopOnSignal,
         SwarmCheckpointCallback,
@@ -174,7 +182,6 @@ def command_train(args: argparse.Namespace) -> int:
         read_checkpoint_state,
     )
     from sb3_latentswarm.common.atomic import probe_writable, write_json
-    from sb3_latentswarm.common.checks import check_int
     from sb3_latentswarm.envs import make_vec_env
     from sb3_latentswarm.latent_ppo import LatentSwarmPPO
     from sb3_latentswarm.latent_ppo.latent_ppo import validate_algorithm_kwargs
@@ -259,14 +266,17 @@ def command_train(args: argparse.Namespace) -> int:
     resume_step = int(state["num_timesteps"]) if state else None
     model.set_logger(configure_run_logger(output, args.verbose, tensorboard_run, resume_step))
     remaining = total - model.num_timesteps
+    per_rollout = model.n_steps * env.num_envs
+    # learn() collects whole rollouts: the run ends at the budget rounded up to them (the progress bar's total)
+    end = model.num_timesteps + (whole_rollouts(remaining, per_rollout) if remaining > 0 else 0)
+    rounded = f" ({total:,} rounded up to whole rollouts of {per_rollout:,})" if end != total else ""
     if state:
-        print(f"Resuming {latest} at {model.num_timesteps:,} of {total:,} agent-steps")
+        print(f"Resuming {latest} at {model.num_timesteps:,} of {end:,} agent-steps{rounded}")
     else:
         overrides = f" with {' '.join(args.set)}" if args.set else ""
-        updates = -(-total // (model.n_steps * env.num_envs))
         print(
-            f"Training preset '{preset.name}'{overrides} for {total:,} agent-steps: {preset.n_envs} swarms of "
-            f"{preset.config.n_agents}, n_steps {model.n_steps}, {updates} updates, seed {args.seed}"
+            f"Training preset '{preset.name}'{overrides} for {end:,} agent-steps{rounded}: {preset.n_envs} swarms of "
+            f"{preset.config.n_agents}, n_steps {model.n_steps}, {end // per_rollout} updates, seed {args.seed}"
         )
     print(f"Checkpoints every {save_freq:,} agent-steps in {checkpoint_dir} (keeping {args.keep_checkpoints})")
     start = time.perf_counter()
@@ -274,12 +284,12 @@ def command_train(args: argparse.Namespace) -> int:
         checkpoints = SwarmCheckpointCallback(
             save_freq, checkpoint_dir, keep=args.keep_checkpoints, settings=run_settings, stop=stop, verbose=args.verbose
         )
+        bar = [RolloutProgressBarCallback()] if not args.no_progress and sys.stderr.isatty() else []
         try:
             if remaining > 0:
                 model.learn(
                     total_timesteps=remaining,
-                    callback=checkpoints,
-                    progress_bar=not args.no_progress and sys.stderr.isatty(),
+                    callback=[checkpoints, *bar],
                     tb_log_name=tb_log_name,
                     reset_num_timesteps=not state,
                 )
@@ -355,7 +365,7 @@ def _evaluate_and_print(
     config, episodes, seed = preset.config, preset.eval_episodes, _eval_seed(args)
     seeds = seed_range(seed, episodes)
     progress_bar = sys.stderr.isatty() and not args.no_progress
-    policy_kwargs = dict(
+    policy_kwargs: dict[str, Any] = dict(
         n_episodes=episodes, seed=seed, config=config, deterministic=not args.stochastic, progress_bar=progress_bar
     )
     frames = [evaluate_conditions(model, conditions=CONDITIONS, p_fail=config.p_fail, **policy_kwargs)]
@@ -644,8 +654,9 @@ def build_parser() -> argparse.ArgumentParser:
             metavar="NAME=VALUE",
             help="override a setting; repeatable, all count. SwarmConfig fields (p_fail=0.5), n_envs, eval_episodes, "
             "and for train LatentSwarmPPO / LatentSwarmPolicy arguments (learning_rate=1e-4, n_steps=100, "
-            "latent_dim=32); values are Python literals, validated as in Python",
+            "latent_dim=32); values are Python literals, validated as in Python; --list-settings lists the names",
         )
+        p.add_argument("--list-settings", action=_ListSettings, help="print every --set name, by where it goes, and exit")
         p.add_argument(
             "--seed",
             type=int,
@@ -664,7 +675,7 @@ def build_parser() -> argparse.ArgumentParser:
             type=int,
             default=0,
             help="torch CPU threads (default 0: the package default of one thread, the fastest for these small "
-            "recurrent nets on a loaded CPU; see sb3_latentswarm.common.threads)",
+            "recurrent nets on a loaded CPU; see sb3_latentswarm.threads)",
         )
         p.add_argument("--no-progress", action="store_true", help="no progress bars (shown on a terminal otherwise)")
         p.add_argument(
@@ -692,7 +703,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     train = sub.add_parser("train", help="train LatentSwarmPPO on a preset")
     add_common(train, "demo")
-    train.add_argument("--total-timesteps", type=positive_int, default=None, help="override the preset's budget (agent-steps)")
+    train.add_argument(
+        "--total-timesteps", type=int_at_least(1), default=None, help="override the preset's budget (agent-steps)"
+    )
     train.add_argument(
         "--output",
         default=None,
@@ -700,7 +713,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     train.add_argument(
         "--save-freq",
-        type=non_negative_int,
+        type=int_at_least(0),
         default=None,
         metavar="AGENT_STEPS",
         help="agent-steps between checkpoints in OUTPUT/checkpoints/ (default: about 5 %% of the budget, in whole "
@@ -709,7 +722,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     train.add_argument(
         "--keep-checkpoints",
-        type=positive_int,
+        type=int_at_least(1),
         default=None,
         metavar="K",
         help="keep the newest K checkpoints (default 3; with --resume, the run's)",
@@ -742,7 +755,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_common(evaluate, None)
     evaluate.add_argument("--model", required=True, help="a LatentSwarmPPO model.zip (e.g. runs/demo/model.zip)")
     add_trust_pickle(evaluate)
-    evaluate.add_argument("--episodes", type=positive_int, default=None, help="episodes per row (default: the preset's)")
+    evaluate.add_argument("--episodes", type=int_at_least(1), default=None, help="episodes per row (default: the preset's)")
     add_eval_seed(evaluate)
     evaluate.add_argument("--p-fail-sweep", action="store_true", help="also run the p_f sweep of Table I (right)")
     evaluate.add_argument(
@@ -760,18 +773,15 @@ def build_parser() -> argparse.ArgumentParser:
     add_common(render, None)
     render.add_argument("--model", default=None, help="saved model (default: random actions)")
     add_trust_pickle(render)
-    render.add_argument(
-        "--condition",
-        default="proposed",
-        help="test-time communication condition of sb3_latentswarm.evaluation.CONDITIONS (default proposed; also "
-        "full_comm, no_comm, no_predictor, no_memory, ...)",
-    )
+    conditions = "proposed (default), full_comm, no_comm, no_predictor, no_memory, ...: sb3_latentswarm.evaluation.CONDITIONS"
+    render.add_argument("--condition", default="proposed", help=f"test-time communication condition: {conditions}")
     render.add_argument("--output", default="episode.gif", help="file ending in .gif or .mp4 (needs imageio-ffmpeg)")
-    render.add_argument("--fps", type=positive_int, default=10, help="frames per second of the animation (default 10)")
+    render.add_argument("--fps", type=int_at_least(1), default=10, help="frames per second of the animation (default 10)")
     render.set_defaults(func=command_render)
 
     sweep = sub.add_parser("sweep", help="train seeds x variants (x a grid) on Ray Tune; across-seed intervals (extra sweep)")
     sweep.add_argument("--preset", required=True, choices=sorted(PRESETS), help="env, algorithm settings and budget")
+    sweep.add_argument("--list-settings", action=_ListSettings, help="print every --set / --grid name, by target, and exit")
     sweep.add_argument("--seeds", type=int, required=True, help="training seeds 0 .. K-1 per variant and grid point")
     sweep.add_argument(
         "--variant",
@@ -793,7 +803,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME=FIELD=V,...",
         help="an extra evaluation cell: config overrides, optionally conditions=C1+C2 (default: every condition)",
     )
-    sweep.add_argument("--eval-episodes", type=positive_int, default=None, help="episodes per cell (default: the preset's)")
+    sweep.add_argument("--eval-episodes", type=int_at_least(1), default=None, help="episodes per cell (default: the preset's)")
     sweep.add_argument("--stochastic", action="store_true", help="evaluate with sampled actions (default: the mean action)")
     sweep.add_argument("--address", default=None, help="Ray cluster to attach to (default: start Ray on this machine)")
     sweep.add_argument(

@@ -10,6 +10,9 @@ evaluation budget. ``docs/concepts.md`` explains each reduction.
 from __future__ import annotations
 
 import dataclasses
+import difflib
+import textwrap
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -73,13 +76,12 @@ class Preset:
         ``SwarmConfig`` fields are validated here by ``SwarmConfig`` itself; ``LatentSwarmPPO`` and
         ``LatentSwarmPolicy`` arguments are validated by their constructors when the model is built.
 
-        :raise TypeError: for a name that is none of those, listing the valid names
+        :raise TypeError: for a name that is none of those, naming its closest valid names (:func:`unknown_settings_message`)
         """
         targets = override_targets()
         unknown = sorted(set(overrides) - {name for names in targets.values() for name in names})
         if unknown:
-            valid = "; ".join(f"{target}: {', '.join(names)}" for target, names in targets.items())
-            raise TypeError(f"unknown setting(s) {unknown}; valid settings are {valid}")
+            raise TypeError(unknown_settings_message(unknown))
         pick = {target: {k: v for k, v in overrides.items() if k in names} for target, names in targets.items()}
         algo_kwargs = {**self.algo_kwargs, **pick["LatentSwarmPPO"]}
         if pick["LatentSwarmPolicy"]:
@@ -121,6 +123,44 @@ def override_targets() -> dict[str, tuple[str, ...]]:
         "LatentSwarmPPO": arguments(LatentSwarmPPO.__init__),
         "LatentSwarmPolicy": arguments(LatentSwarmPolicy.__init__),
     }
+
+
+LIST_SETTINGS_COMMAND = "sb3-latentswarm train --list-settings"
+"""The command that prints every setting name, by target (:func:`format_settings`)."""
+
+
+def unknown_settings_message(unknown: Sequence[str]) -> str:
+    """The error text for setting names that :func:`override_targets` does not know: each name with its three closest
+    valid names (``difflib.get_close_matches``) and where the full list is (:data:`LIST_SETTINGS_COMMAND`).
+
+    :param unknown: the unknown names, in the order to report them
+    :return: e.g. ``unknown setting 'lerning_rate' (did you mean learning_rate?); `sb3-latentswarm train
+        --list-settings` lists every setting``
+    """
+    valid = [name for names in override_targets().values() for name in names]
+    described = []
+    for name in unknown:
+        close = difflib.get_close_matches(name, valid, n=3)
+        described.append(f"{name!r}" + (f" (did you mean {', '.join(close)}?)" if close else " (no close match)"))
+    plural = "s" if len(described) > 1 else ""
+    return f"unknown setting{plural} {', '.join(described)}; `{LIST_SETTINGS_COMMAND}` lists every setting"
+
+
+def format_settings(width: int = 100) -> str:
+    """Every name that ``--set`` (and :meth:`Preset.with_overrides`) accepts, one paragraph per target of
+    :func:`override_targets`, names sorted, wrapped to ``width`` characters."""
+    where = {
+        "SwarmConfig": "the env (Sec. II; `evaluate` and `render` too)",
+        "Preset": "the run (n_envs: `train` only)",
+        "LatentSwarmPPO": "the algorithm (`train` only)",
+        "LatentSwarmPolicy": "the policy, as policy_kwargs (`train` only)",
+    }
+    paragraphs = []
+    for target, names in override_targets().items():
+        title = f"{target}: {where.get(target, '')}".rstrip(": ")
+        body = textwrap.fill(", ".join(sorted(names)), width=width, initial_indent="  ", subsequent_indent="  ")
+        paragraphs.append(f"{title}\n{body}")
+    return "\n\n".join(paragraphs)
 
 
 MAPPO_TRAINING: dict[str, Any] = dict(normalize_value=True, value_loss="huber", grad_clip="per_group")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -37,7 +38,8 @@ def _episode(model, config: SwarmConfig, seed: int, condition: str, deterministi
     rng = np.random.default_rng(seed)
     policy = getattr(model, "policy", None)
     switches = policy_switches(policy, condition) if isinstance(policy, LatentSwarmPolicy) else contextlib.nullcontext()
-    state, infos, t, last = None, {}, 0, False
+    infos: dict[str, dict[str, Any]] = {}
+    state, t, last = None, 0, False
     with switches, th.random.fork_rng():
         th.manual_seed(seed)  # the action noise of deterministic=False
         while True:
@@ -180,7 +182,7 @@ def render_episode(
             if frame is None:
                 continue
             frame = _decorate(frame, np.asarray(positions[:-1]).reshape(-1, position.shape[0], 3), dropout, config)
-            if gif:  # a GIF is written at the end: keep each frame as the 1-byte palette image it becomes in the file
+            if writer is None:  # a GIF is written at the end: keep each frame as the 1-byte palette image it becomes
                 palette_frames.append(Image.fromarray(frame).convert("P", palette=Image.Palette.ADAPTIVE))
             else:  # H.264 in yuv420p needs even frame sizes: pad one row/column of the border colour where needed
                 writer.append_data(np.pad(frame, ((0, frame.shape[0] % 2), (0, frame.shape[1] % 2), (0, 0)), mode="edge"))

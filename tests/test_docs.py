@@ -4,6 +4,8 @@ import re
 import runpy
 from pathlib import Path
 
+import pytest
+
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 
 
@@ -56,6 +58,7 @@ def test_results_page_keeps_long_reports_collapsed():
     assert outside.count("\n|") < 60  # table rows left open: the claims table and a few short ones
 
 
+@pytest.mark.slow  # builds the whole site with Sphinx: 15 s at load 5 (`make docs` in CI builds it too)
 def test_built_pages_are_offline_readable_and_show_no_inherited_torch_docstring(tmp_path):
     import subprocess
     import sys

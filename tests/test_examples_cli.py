@@ -32,6 +32,7 @@ def test_reproduce_table1_help_describes_every_option():
     assert "default: runs/table1_PRESET" in options and "Monte Carlo runs per condition" in options
 
 
+@pytest.mark.slow  # trains and evaluates every Table I cell in a subprocess: 20 s at load 5
 def test_reproduce_table1_smoke(tmp_path):
     # run from another folder without --output: the results go under runs/, never into docs/results/
     result = run_script(str(ROOT / "examples" / "reproduce_table1.py"), "--preset", "smoke", cwd=tmp_path)
@@ -148,7 +149,7 @@ def test_render_episode_writes_mp4_with_odd_frame_sizes(tmp_path):
 def test_cli_overrides_are_typed_and_checked():
     overrides = parse_overrides(["p_fail=0.5", "n_agents=4", "link_mode=full"])
     assert overrides == {"p_fail": 0.5, "n_agents": 4, "link_mode": "full"}
-    with pytest.raises(ValueError, match="unknown setting 'p_failure'; valid settings are SwarmConfig: .*p_fail"):
+    with pytest.raises(ValueError, match=r"unknown setting 'p_failure' \(did you mean p_fail\?\); `sb3-latentswarm train --l"):
         parse_overrides(["p_failure=0.5"])
     with pytest.raises(ValueError, match="NAME=VALUE"):
         parse_overrides(["p_fail"])
@@ -166,6 +167,14 @@ def test_every_set_counts_and_reaches_config_algorithm_and_policy(tmp_path):
     assert preset.n_envs == 3 and (preset.algo_kwargs["n_steps"], preset.algo_kwargs["chunk_length"]) == (40, 10)
 
 
+def test_train_states_the_budget_rounded_up_to_whole_rollouts(tmp_path, capsys):
+    # smoke: 2 swarms of 3 UAVs, n_steps 20: a rollout is 120 agent-steps, so 130 trains two of them
+    assert main(["train", "--preset", "smoke", "--output", str(tmp_path), "--no-progress", "--total-timesteps", "130"]) == 0
+    out = capsys.readouterr().out
+    assert "for 240 agent-steps (130 rounded up to whole rollouts of 120): 2 swarms of 3, n_steps 20, 2 updates" in out
+    assert LatentSwarmPPO.load(tmp_path / "model.zip").num_timesteps == 240
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [
@@ -175,13 +184,15 @@ def test_every_set_counts_and_reaches_config_algorithm_and_policy(tmp_path):
         (["train", "--preset", "smoke", "--set", "n_agents=2.5"], "n_agents must be an int, got float (2.5)"),
         (["train", "--preset", "smoke", "--set", "n_steps=2.5"], "n_steps must be an int"),
         (["train", "--preset", "smoke", "--set", "pred_coef='5'"], "pred_coef must be a number"),
-        (["train", "--preset", "smoke", "--set", "lerning_rate=1"], "valid settings are SwarmConfig: "),
+        (["train", "--preset", "smoke", "--set", "lerning_rate=1"], "'lerning_rate' (did you mean learning_rate?)"),
+        (["train", "--preset", "smoke", "--set", "warp_speed=1"], "'warp_speed' (no close match); `sb3-latentswarm train"),
         (["render", "--preset", "smoke", "--set", "learning_rate=1e-3"], "a training setting"),
         (["render", "--preset", "smoke", "--output", "episode"], "output must end in one of"),
         (["render", "--preset", "smoke", "--output", "episode.png"], "output must end in one of"),
-        (["render", "--preset", "smoke", "--fps", "0"], "--fps: must be >= 1, got 0"),
-        (["evaluate", "--model", "m.zip", "--episodes", "0"], "--episodes: must be >= 1, got 0"),
-        (["train", "--preset", "smoke", "--total-timesteps", "-5"], "--total-timesteps: must be >= 1, got -5"),
+        (["render", "--preset", "smoke", "--fps", "0"], "--fps: expected an int >= 1, got '0'"),
+        (["evaluate", "--model", "m.zip", "--episodes", "0"], "--episodes: expected an int >= 1, got '0'"),
+        (["train", "--preset", "smoke", "--total-timesteps", "-5"], "--total-timesteps: expected an int >= 1, got '-5'"),
+        (["train", "--preset", "smoke", "--save-freq", "1e3"], "--save-freq: expected an int >= 0, got '1e3'"),
     ],
 )
 def test_cli_bad_arguments_exit_with_a_clear_message(argv, message, capsys):
@@ -189,6 +200,31 @@ def test_cli_bad_arguments_exit_with_a_clear_message(argv, message, capsys):
         main(argv)
     assert exit_info.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_list_settings_prints_every_set_name_by_target_and_exits(capsys):
+    from sb3_latentswarm.presets import override_targets
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train", "--list-settings"])
+    assert exit_info.value.code == 0
+    out = capsys.readouterr().out
+    listed = {name.strip() for line in out.splitlines() if line.startswith("  ") for name in line.split(",")} - {""}
+    targets = override_targets()
+    assert listed == {name for names in targets.values() for name in names}
+    headings = [line.split(":")[0] for line in out.splitlines() if line and not line.startswith("  ")]
+    assert headings == list(targets)
+
+
+def test_unknown_setting_names_get_at_most_three_close_matches():
+    from sb3_latentswarm.presets import get_preset, unknown_settings_message
+
+    message = unknown_settings_message(["n_agent", "zzz"])
+    assert message.startswith("unknown settings 'n_agent' (did you mean n_agents")
+    assert message.count(",", 0, message.index("?")) <= 2  # three names at most
+    assert "'zzz' (no close match)" in message and "--list-settings" in message
+    with pytest.raises(TypeError, match=r"'lerning_rate' \(did you mean learning_rate\?\)"):
+        get_preset("smoke").with_overrides(lerning_rate=1e-3)
 
 
 def test_cli_unknown_preset_is_rejected(capsys):
@@ -291,6 +327,7 @@ def test_importing_the_package_applies_the_thread_default_unless_the_environment
     assert int(result.stdout) == expected
 
 
+@pytest.mark.slow  # trains and evaluates in a subprocess: 9 s at load 5
 def test_dropout_diagnostics_smoke(tmp_path):
     model = ROOT / "docs/results/coordination/trials/proposed-seed0/model.zip"
     result = run_script(

@@ -404,6 +404,7 @@ def test_stray_or_damaged_trial_folders_are_named(tmp_path, capsys, damage, mess
     assert error.value.code == 2 and message in capsys.readouterr().err
 
 
+@pytest.mark.slow  # a trial process trained, killed and resumed: 31 s at load 5 (the trial-level kill test stays fast)
 def test_a_sweep_trial_killed_mid_way_resumes_from_its_checkpoint(tmp_path):
     from sb3_latentswarm.checkpoints import latest_checkpoint, read_checkpoint_state
 

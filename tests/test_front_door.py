@@ -58,6 +58,42 @@ def test_public_names_load_on_first_use():
         sb3_latentswarm.LatentPPO  # noqa: B018
 
 
+def test_common_names_load_on_first_use_through_the_same_mechanism():
+    code = (
+        "import sys\n"
+        "import sb3_latentswarm.common as common\n"
+        "print('torch' in sys.modules, sorted(common.__all__) == sorted(n for n in dir(common) if n in common.__all__))\n"
+        "from sb3_latentswarm.common.value_norm import ValueNorm\n"
+        "print(common.ValueNorm is ValueNorm, 'ValueNorm' in vars(common))\n"
+        "try:\n"
+        "    common.ValueNormalizer\n"
+        "except AttributeError as error:\n"
+        "    print(error)\n"
+    )
+    assert run_python(code).splitlines() == [
+        "False True",
+        "True True",
+        "module 'sb3_latentswarm.common' has no attribute 'ValueNormalizer'",
+    ]
+
+
+def test_the_threads_module_of_0_1_still_imports_from_its_old_path_with_a_deprecation_warning():
+    code = (
+        "import warnings\n"
+        "warnings.filterwarnings('error', message='sb3_latentswarm')\n"
+        "import sb3_latentswarm.threads as threads\n"  # the new path imports without a warning
+        "with warnings.catch_warnings(record=True) as caught:\n"
+        "    warnings.simplefilter('always')\n"
+        "    from sb3_latentswarm.common.threads import apply_default_torch_threads\n"
+        "print(apply_default_torch_threads is threads.apply_default_torch_threads, caught[0].category.__name__)\n"
+        "print(caught[0].message)\n"
+    )
+    assert run_python(code).splitlines() == [
+        "True DeprecationWarning",
+        "sb3_latentswarm.common.threads moved to sb3_latentswarm.threads; the old path will be removed in 0.3",
+    ]
+
+
 def test_the_thread_default_is_applied_once_so_a_later_choice_is_kept():
     code = (
         "import torch\n"

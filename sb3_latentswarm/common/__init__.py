@@ -6,16 +6,15 @@ The names are loaded on first use (PEP 562), so that importing a torch-free modu
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
-_EXPORTS = {
-    "SwarmRolloutBuffer": "sb3_latentswarm.common.buffers",
-    "StepSchedule": "sb3_latentswarm.common.schedules",
-    "paper_learning_rate": "sb3_latentswarm.common.schedules",
-    "LatentState": "sb3_latentswarm.common.type_aliases",
-    "SwarmRolloutBufferSamples": "sb3_latentswarm.common.type_aliases",
-    "ValueNorm": "sb3_latentswarm.common.value_norm",
+from sb3_latentswarm._lazy import lazy_exports
+
+_EXPORTS = {  # the module that defines them -> public names
+    "sb3_latentswarm.common.buffers": ("SwarmRolloutBuffer",),
+    "sb3_latentswarm.common.schedules": ("StepSchedule", "paper_learning_rate"),
+    "sb3_latentswarm.common.type_aliases": ("LatentState", "SwarmRolloutBufferSamples"),
+    "sb3_latentswarm.common.value_norm": ("ValueNorm",),
 }
 
 if TYPE_CHECKING:
@@ -25,16 +24,7 @@ if TYPE_CHECKING:
     from sb3_latentswarm.common.value_norm import ValueNorm
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _EXPORTS:
-        raise AttributeError(f"module 'sb3_latentswarm.common' has no attribute {name!r}")
-    value = getattr(importlib.import_module(_EXPORTS[name]), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted([*globals(), *_EXPORTS])
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 
 
 __all__ = [

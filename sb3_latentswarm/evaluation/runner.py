@@ -20,7 +20,7 @@ from __future__ import annotations
 import contextlib
 import os
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Literal, overload
 
 import numpy as np
 import pandas as pd
@@ -231,6 +231,19 @@ def _episode_row(k: int, seed: int, summary: dict[str, Any], diagnostics: dict[s
 
 
 # ---------------------------------------------------------------------------------------------- public API
+# The return type follows ``return_curves`` (typeshed's habit for flag-dependent returns).
+@overload
+def evaluate(model: Any, condition: str = ..., p_fail: float | None = ..., n_episodes: int = ..., seed: int = ...,
+             config: SwarmConfig | None = ..., deterministic: bool = ..., n_envs: int | None = ...,
+             return_curves: Literal[False] = ..., progress_bar: bool = ...) -> pd.DataFrame: ...
+@overload
+def evaluate(model: Any, condition: str = ..., p_fail: float | None = ..., n_episodes: int = ..., seed: int = ...,
+             config: SwarmConfig | None = ..., deterministic: bool = ..., n_envs: int | None = ..., *,
+             return_curves: Literal[True], progress_bar: bool = ...) -> tuple[pd.DataFrame, np.ndarray]: ...
+@overload
+def evaluate(model: Any, condition: str = ..., p_fail: float | None = ..., n_episodes: int = ..., seed: int = ...,
+             config: SwarmConfig | None = ..., deterministic: bool = ..., n_envs: int | None = ..., *,
+             return_curves: bool, progress_bar: bool = ...) -> pd.DataFrame | tuple[pd.DataFrame, np.ndarray]: ...
 def evaluate(
     model: Any,
     condition: str = "proposed",
@@ -321,6 +334,18 @@ def evaluate(
     return (df, curves) if return_curves else df
 
 
+@overload
+def evaluate_conditions(model: Any, conditions: Sequence[str] = ..., p_fail: float | None = ..., n_episodes: int = ...,
+                        seed: int = ..., config: SwarmConfig | None = ..., return_curves: Literal[False] = ...,
+                        **kwargs: Any) -> pd.DataFrame: ...
+@overload
+def evaluate_conditions(model: Any, conditions: Sequence[str] = ..., p_fail: float | None = ..., n_episodes: int = ...,
+                        seed: int = ..., config: SwarmConfig | None = ..., *, return_curves: Literal[True],
+                        **kwargs: Any) -> tuple[pd.DataFrame, dict[str, np.ndarray]]: ...
+@overload
+def evaluate_conditions(model: Any, conditions: Sequence[str] = ..., p_fail: float | None = ..., n_episodes: int = ...,
+                        seed: int = ..., config: SwarmConfig | None = ..., *, return_curves: bool,
+                        **kwargs: Any) -> pd.DataFrame | tuple[pd.DataFrame, dict[str, np.ndarray]]: ...
 def evaluate_conditions(
     model: Any,
     conditions: Sequence[str] = CONDITIONS,
@@ -342,6 +367,18 @@ def evaluate_conditions(
     return _evaluate_cells(model, cells, n_episodes, seed, config, return_curves, kwargs)
 
 
+@overload
+def evaluate_p_fail_sweep(model: Any, p_fails: Sequence[float] = ..., n_episodes: int = ..., seed: int = ...,
+                          config: SwarmConfig | None = ..., condition: str = ..., return_curves: Literal[False] = ...,
+                          **kwargs: Any) -> pd.DataFrame: ...
+@overload
+def evaluate_p_fail_sweep(model: Any, p_fails: Sequence[float] = ..., n_episodes: int = ..., seed: int = ...,
+                          config: SwarmConfig | None = ..., condition: str = ..., *, return_curves: Literal[True],
+                          **kwargs: Any) -> tuple[pd.DataFrame, dict[float, np.ndarray]]: ...
+@overload
+def evaluate_p_fail_sweep(model: Any, p_fails: Sequence[float] = ..., n_episodes: int = ..., seed: int = ...,
+                          config: SwarmConfig | None = ..., condition: str = ..., *, return_curves: bool,
+                          **kwargs: Any) -> pd.DataFrame | tuple[pd.DataFrame, dict[float, np.ndarray]]: ...
 def evaluate_p_fail_sweep(
     model: Any,
     p_fails: Sequence[float] = PAPER_P_FAILS,

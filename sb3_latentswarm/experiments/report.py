@@ -297,7 +297,7 @@ def write_report(output: str | Path, commit: str | None = None) -> pd.DataFrame:
     :return: the aggregate table (long format, see :func:`~.aggregate.aggregate_scores`)
     :raises ValueError: when no trial is finished, or a trial folder is stray or damaged (:func:`finished_trials`)
     """
-    from sb3_latentswarm.common.run_record import write_run_record
+    from sb3_latentswarm.experiments.run_record import write_run_record
 
     output = Path(output)
     spec = SweepSpec.load(output / "sweep.json")

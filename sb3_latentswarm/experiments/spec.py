@@ -34,7 +34,7 @@ from sb3_latentswarm.experiments.trial import (
     trial_preset,
     variant_algo_kwargs,
 )
-from sb3_latentswarm.presets import Preset, get_preset, override_targets
+from sb3_latentswarm.presets import Preset, get_preset, override_targets, unknown_settings_message
 
 __all__ = [
     "DEFAULT_VARIANTS",
@@ -307,6 +307,5 @@ def _check_settings(names: Sequence[str], what: str) -> None:
     targets = override_targets()
     unknown = [name for name in names if not any(name in settings for settings in targets.values())]
     if unknown:
-        valid = "; ".join(f"{target}: {', '.join(settings)}" for target, settings in targets.items())
-        raise ValueError(f"{what}: unknown setting(s) {unknown}; valid settings are {valid}")
+        raise ValueError(f"{what}: {unknown_settings_message(unknown)}")
 

@@ -365,8 +365,8 @@ def run_sweep(
         unreachable cluster or storage, before anything is trained
     :raises RuntimeError: when trials failed (the finished ones are aggregated; ``resume=True`` reruns the rest)
     """
-    from sb3_latentswarm.common.run_record import git_commit
     from sb3_latentswarm.experiments.report import write_report
+    from sb3_latentswarm.experiments.run_record import git_commit
 
     if not isinstance(spec, SweepSpec):
         raise TypeError(f"spec must be a SweepSpec (SweepSpec.create(...)), got {type(spec).__name__}")

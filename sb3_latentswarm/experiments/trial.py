@@ -128,7 +128,7 @@ class TuneProgress(BaseCallback):
         return True
 
     def _on_rollout_end(self) -> None:
-        returns = [info["r"] for info in self.model.ep_info_buffer]
+        returns = [info["r"] for info in self.model.ep_info_buffer or ()]
         row = {
             "agent_steps": float(self.num_timesteps),
             "episode_reward": float(np.mean(returns)) if returns else math.nan,
@@ -232,7 +232,7 @@ def train_and_evaluate(
     :raise sb3_latentswarm.checkpoints.CheckpointError: for a checkpoint of another trial in ``output``, or any
         checkpoint when ``resume`` is ``False``
     """
-    from sb3_latentswarm.baselines.independent import train_independent_ppo
+    from sb3_latentswarm.baselines.independent import IndependentRecurrentPPO, train_independent_ppo
     from sb3_latentswarm.checkpoints import (
         CheckpointError,
         StopOnSignal,
@@ -243,8 +243,8 @@ def train_and_evaluate(
         read_checkpoint_state,
     )
     from sb3_latentswarm.common.atomic import atomic_path, probe_writable, write_json
-    from sb3_latentswarm.common.run_record import machine_summary
     from sb3_latentswarm.envs import make_vec_env
+    from sb3_latentswarm.experiments.run_record import machine_summary
     from sb3_latentswarm.latent_ppo import LatentSwarmPPO
 
     spec = trial["spec"]
@@ -271,17 +271,18 @@ def train_and_evaluate(
         progress.rows = list(stored["extra"].get("progress_rows", []))
     probe_writable(output, room_bytes=1 << 20)
     start = time.perf_counter()
+    model: LatentSwarmPPO | IndependentRecurrentPPO
     if variant == "independent":
-        model = train_independent_ppo(
+        independent = train_independent_ppo(
             env, preset.total_timesteps, seed=train_seed, device=device, callback=progress, **preset.independent_ppo_kwargs()
         )
-        trained_steps = model.model.num_timesteps
+        model, trained_steps, trained_on = independent, independent.model.num_timesteps, independent.model.device
     else:
         if latest is not None:
-            model = LatentSwarmPPO.load_checkpoint(latest, env=env, device=device)
+            latent = LatentSwarmPPO.load_checkpoint(latest, env=env, device=device)
         else:
             algo_kwargs = variant_algo_kwargs(variant, preset.algo_kwargs)
-            model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=train_seed, device=device, **algo_kwargs)
+            latent = LatentSwarmPPO("LatentSwarmPolicy", env, seed=train_seed, device=device, **algo_kwargs)
         per_update = preset.algo_kwargs["n_steps"] * preset.n_envs * preset.config.n_agents
         freq = default_save_freq(preset.total_timesteps, per_update) if save_freq is None else save_freq
         with StopOnSignal() as stop:
@@ -293,12 +294,12 @@ def train_and_evaluate(
                 extra_state=lambda: {"progress_rows": progress.rows},
                 stop=stop,
             )
-            remaining = preset.total_timesteps - model.num_timesteps
+            remaining = preset.total_timesteps - latent.num_timesteps
             if remaining > 0:
-                model.learn(total_timesteps=remaining, callback=[progress, checkpoints], reset_num_timesteps=latest is None)
+                latent.learn(total_timesteps=remaining, callback=[progress, checkpoints], reset_num_timesteps=latest is None)
         if checkpoints.stopped:
             raise TrainingInterrupted(stop.signum, checkpoints.last_path)
-        trained_steps = model.num_timesteps
+        model, trained_steps, trained_on = latent, latent.num_timesteps, latent.device
     train_seconds = time.perf_counter() - start
     output.mkdir(parents=True, exist_ok=True)
     model.save(output / "model.zip")
@@ -320,7 +321,7 @@ def train_and_evaluate(
         "grid_point": grid_point,
         "preset": spec.preset,
         "commit": trial["commit"],
-        "machine": machine_summary(model.device if variant != "independent" else model.model.device),
+        "machine": machine_summary(trained_on),
         "node": platform.node(),
         "train_config": train_config.to_dict(),
         "eval_config": preset.config.to_dict(),

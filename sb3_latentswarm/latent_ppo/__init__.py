@@ -1,8 +1,8 @@
 """LatentSwarmPPO and its policy."""
 
-from sb3_latentswarm.common.threads import apply_default_torch_threads_once
 from sb3_latentswarm.latent_ppo.latent_ppo import LatentSwarmPPO, NonFiniteLossError, validate_algorithm_kwargs
 from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
+from sb3_latentswarm.threads import apply_default_torch_threads_once
 
 apply_default_torch_threads_once()
 

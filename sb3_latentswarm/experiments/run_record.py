@@ -1,7 +1,9 @@
 """The record an experiment script writes next to its results: ``run.md`` with command, commit, machine and facts.
 
-``examples/reproduce_table1.py``, ``learning_curve.py`` and ``sustained_dropout.py`` use it, so that every folder
-under ``docs/results/`` says the same things about how it was made.
+The example scripts (``examples/reproduce_table1.py``, ``learning_curve.py``, ``sustained_dropout.py``, ...), the sweep
+report and the trial records use it, so that every folder under ``docs/results/`` says the same things about how it
+was made. It describes a run of an experiment, hence its place here rather than among the algorithm's building blocks
+in ``common/``.
 """
 
 from __future__ import annotations

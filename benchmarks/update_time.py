@@ -288,6 +288,7 @@ def run(args: argparse.Namespace, device: th.device) -> dict[str, Any]:
         "agent_steps_per_second": per_update / seconds["update"],
         "budget_updates": preset.updates,
         "budget_hours": preset.updates * seconds["update"] / 3600,
+        "budget_cpu_hours": preset.updates * timer.per_update(timer.cpu, args.updates)["update"] / 3600,
         "host_syncs": syncs,
         "peak_memory_bytes": memory,
         "peak_memory_kind": memory_kind,
@@ -303,7 +304,9 @@ def print_report(result: dict[str, Any]) -> None:
     print(f"preset {result['preset']}: {result['parameters']:,} parameters, {result['agent_steps_per_update']:,} agent-steps "
           f"and {result['minibatches_per_update']:g} minibatches per update, {result['updates']} update(s) timed "
           f"after {result['warmup_updates']} warm-up")
-    print("| range | wall s per update | CPU s per update (this thread) | share of the update |")
+    # on a shared CPU the wall clock counts other processes' time slices too: the share comes from this thread's CPU time
+    share, share_clock = (c, "CPU") if result["device"] == "cpu" else (s, "wall")
+    print(f"| range | wall s per update | CPU s per update (this thread) | share of the update ({share_clock}) |")
     print("|---|---:|---:|---:|")
     labels = {
         "update": "whole update (learn)", "rollout": "rollout", "env": "  env step", "policy": "  policy forward",
@@ -311,9 +314,9 @@ def print_report(result: dict[str, Any]) -> None:
         "backward": "  backward", "optimizer": "  optimizer (+ grad clip, zero_grad)",
     }
     for key in RANGES:
-        print(f"| {labels[key]} | {s[key]:.3f} | {c[key]:.3f} | {100 * s[key] / s['update']:.0f} % |")
-    print(f"{result['agent_steps_per_second']:,.0f} agent-steps/s; the preset's {result['budget_updates']} updates: "
-          f"{result['budget_hours']:.1f} h")
+        print(f"| {labels[key]} | {s[key]:.3f} | {c[key]:.3f} | {100 * share[key] / share['update']:.0f} % |")
+    print(f"{result['agent_steps_per_second']:,.0f} agent-steps per wall s; the preset's {result['budget_updates']} "
+          f"updates: {result['budget_hours']:.1f} h wall, {result['budget_cpu_hours']:.1f} h of this thread's CPU time")
     syncs = result["host_syncs"]
     if syncs is not None:
         rollout, train = syncs["rollout"], syncs["train"]

@@ -316,7 +316,7 @@ def print_report(result: dict[str, Any]) -> None:
     for key in RANGES:
         print(f"| {labels[key]} | {s[key]:.3f} | {c[key]:.3f} | {100 * share[key] / share['update']:.0f} % |")
     print(f"{result['agent_steps_per_second']:,.0f} agent-steps per wall s; the preset's {result['budget_updates']} "
-          f"updates: {result['budget_hours']:.1f} h wall, {result['budget_cpu_hours']:.1f} h of this thread's CPU time")
+          f"updates: {result['budget_hours']:.2f} h wall, {result['budget_cpu_hours']:.2f} h of this thread's CPU time")
     syncs = result["host_syncs"]
     if syncs is not None:
         rollout, train = syncs["rollout"], syncs["train"]

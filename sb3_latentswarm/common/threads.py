@@ -1,10 +1,10 @@
 """The number of torch CPU threads this package runs with, chosen in this one place.
 
 Measured with ``benchmarks/threads.py`` (the README's training snippet) on this project's shared 2-core machine at a
-load average of 10.6: one thread trained at 154 agent-steps/s, two at 12 (0.08x), because the second thread waits for
-a core that other processes hold. The issue that asked for this measured two threads faster by a small factor when the
-second core was free. One thread is therefore the default: never far from the best, never an order of magnitude
-slower, and the same arithmetic on every machine (results do not depend on the core count).
+load average of 5.3 (2026-12-02): one thread trained at 349 agent-steps/s, two at 20 (0.06x), because the second
+thread waits for a core that other processes hold. The issue that asked for this measured two threads faster by a
+small factor when the second core was free. One thread is therefore the default: never far from the best, never an
+order of magnitude slower, and the same arithmetic on every machine (results do not depend on the core count).
 
 Measured again for issue 21 (``docs/benchmarks.md``): a ``coordination`` update took 144 s with two threads against
 2.7 s with one on the loaded 2-core machine (0.02x): OpenMP threads spin-wait for a core that another process holds.

@@ -56,6 +56,7 @@ class UpdateProfiler:
     def __init__(self, model: LatentSwarmPPO) -> None:
         self.model = model
         self.cuda = model.device.type == "cuda"
+        self.device_sync = self.cuda  # synchronize around each range (off while counting syncs: they would count)
         self.wall: Counter[str] = Counter()
         self.cpu: Counter[str] = Counter()
         self.minibatches = 0
@@ -67,7 +68,7 @@ class UpdateProfiler:
 
     # ------------------------------------------------------------------ wrapping
     def _sync(self) -> None:
-        if self.cuda:
+        if self.device_sync:
             th.cuda.synchronize(self.model.device)
 
     @contextlib.contextmanager
@@ -170,11 +171,11 @@ def _sync_summary(events: Any) -> dict[str, Any]:
 def count_syncs(model: LatentSwarmPPO, timer: UpdateProfiler, per_update: int, first: bool) -> dict[str, Any]:
     """One (warm-up) update with its rollout and its training each under ``torch.profiler``: host syncs and aten ops."""
     timer.reset()
-    timer.profiled = {"rollout", "train"}
+    timer.profiled, timer.device_sync = {"rollout", "train"}, False
     try:
         model.learn(per_update, reset_num_timesteps=first)
     finally:
-        timer.profiled = set()
+        timer.profiled, timer.device_sync = set(), timer.cuda
     rollout, train = _sync_summary(timer.profiles["rollout"]), _sync_summary(timer.profiles["train"])
     minibatches = max(timer.minibatches, 1)
     train["minibatches"] = timer.minibatches

@@ -1,9 +1,13 @@
 """Training throughput: LatentSwarmPPO against sb3-contrib RecurrentPPO("MultiInputLstmPolicy") on the same VecEnv,
 or (``--backends``) one whole update of a preset with each ``make_vec_env`` backend.
 
-Default mode: both algorithms train on ``make_vec_env`` with the paper's observation sizes (50x50 map, N = 3) and the
-same hidden size, rollout length, minibatch size (in agent-steps) and number of epochs. Prints agent-steps per second
-and their ratio.
+Default mode: ``LatentSwarmPPO`` and ``RecurrentPPO`` train on ``make_vec_env`` with the paper's observation sizes
+(50x50 map, N = 3) at each ``--hidden`` size (default 64 and 512: ours with d_mu = d_tau = d_rho = hidden and the
+default 256-wide predictor, decoder and critic; theirs with an LSTM of that size and one layer of that width), with
+the same rollout length, minibatch size (in agent-steps) and number of epochs. After one warm-up update each, all
+models train in alternating blocks of whole updates (so that a change in the machine's load hits every model alike),
+on one torch thread, timed by this thread's CPU time (``time.thread_time``). Prints agent-steps per CPU second (and
+per wall second) of each, and the ratio ours / theirs per hidden size.
 
 ``--backends``: ``LatentSwarmPPO`` with the preset's settings (default ``fast``) on the ``"supersuit"`` and the
 ``"batched"`` backend (same seed, hence the same episodes), updates timed in alternation after one warm-up update
@@ -13,7 +17,7 @@ this one thread) and wall seconds, and the ratio of the whole update (target >= 
 ``--compile``: the same measurement on the batched backend, with the eager and the ``torch.compile``-d latent step
 (``compile_latent_step=True``); the first (warm-up) update carries the compilation, whose cost is reported.
 
-    python benchmarks/train_throughput.py --hidden 64 --n-envs 8 --n-steps 128 --iterations 3
+    python benchmarks/train_throughput.py --hidden 64 512 --blocks 2
     python benchmarks/train_throughput.py --backends --preset fast --iterations 2 --threads 1
     python benchmarks/train_throughput.py --compile --preset fast --iterations 2 --threads 1
 """
@@ -21,6 +25,7 @@ this one thread) and wall seconds, and the ratio of the whole update (target >= 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import torch as th
@@ -30,13 +35,76 @@ from sb3_latentswarm import LatentSwarmPPO, SwarmConfig
 from sb3_latentswarm.envs import make_vec_env
 from sb3_latentswarm.envs.vec_env import BACKENDS
 from sb3_latentswarm.presets import PRESETS, get_preset
+from sb3_latentswarm.threads import set_torch_threads
 
 
-def measure(model, total_timesteps: int) -> float:
-    model.learn(total_timesteps=model.n_steps * model.n_envs)  # warm-up rollout + update
-    start = time.perf_counter()
-    model.learn(total_timesteps=total_timesteps, reset_num_timesteps=True)
-    return model.num_timesteps / (time.perf_counter() - start)
+class LearnTimer:
+    """One model trained in blocks of whole updates; accumulates this thread's CPU seconds and wall seconds."""
+
+    def __init__(self, model) -> None:
+        self.model = model
+        self.per_update = model.n_steps * model.n_envs
+        self.parameters = sum(p.numel() for p in model.policy.parameters())
+        model.learn(self.per_update)  # warm-up rollout + update, not counted
+        self.cpu = self.wall = 0.0
+        self.agent_steps = 0
+
+    def block(self, updates: int) -> None:
+        cpu, wall = time.thread_time(), time.perf_counter()
+        self.model.learn(updates * self.per_update, reset_num_timesteps=False)
+        self.cpu += time.thread_time() - cpu
+        self.wall += time.perf_counter() - wall
+        self.agent_steps += updates * self.per_update
+
+
+def make_pair(hidden: int, n_envs: int, n_steps: int, chunk_length: int, n_epochs: int) -> dict[str, LearnTimer]:
+    """LatentSwarmPPO and RecurrentPPO at latent / LSTM size ``hidden``, same env, rollout, minibatch and epochs."""
+    config = SwarmConfig()  # the paper's observations: 50 x 50 map, N = 3
+    batch_size = config.n_agents * chunk_length * 4  # agent-steps; 4 swarm sequences of chunk_length steps
+    common = dict(n_steps=n_steps, batch_size=batch_size, n_epochs=n_epochs, seed=0, device="cpu")
+    ours = LatentSwarmPPO(
+        "LatentSwarmPolicy",
+        make_vec_env(n_envs, config=config, seed=0),
+        chunk_length=chunk_length,
+        policy_kwargs=dict(latent_dim=hidden),
+        **common,
+    )
+    theirs = RecurrentPPO(
+        "MultiInputLstmPolicy",
+        make_vec_env(n_envs, config=config, seed=0),
+        policy_kwargs=dict(lstm_hidden_size=hidden, net_arch=[hidden]),
+        **common,
+    )
+    return {"LatentSwarmPPO": LearnTimer(ours), "RecurrentPPO": LearnTimer(theirs)}
+
+
+def compare_recurrent_ppo(args: argparse.Namespace) -> None:
+    """Agent-steps per CPU second of both algorithms at every ``--hidden`` size, in alternating blocks, one run."""
+    th.set_num_threads(1)  # per-thread CPU time would miss the work of other threads
+    load_before = os.getloadavg()
+    pairs = {hidden: make_pair(hidden, args.n_envs, args.n_steps, args.chunk_length, args.n_epochs) for hidden in args.hidden}
+    for _ in range(args.blocks):  # alternate, so that a change of the machine's load hits every model alike
+        for pair in pairs.values():
+            for timer in pair.values():
+                timer.block(args.updates_per_block)
+    load_after = os.getloadavg()
+    config = SwarmConfig()
+    print(f"paper observations (50x50 map, N={config.n_agents}), n_envs={args.n_envs}, n_steps={args.n_steps}, "
+          f"minibatch={config.n_agents * args.chunk_length * 4} agent-steps, epochs={args.n_epochs}, 1 torch thread; "
+          f"{args.blocks} block(s) of {args.updates_per_block} update(s) per model after one warm-up update")
+    print(f"{os.cpu_count()} cores, load average {load_before[0]:.2f} before, {load_after[0]:.2f} after")
+    print("| hidden | model | parameters | agent-steps per CPU s | agent-steps per wall s | CPU s per update |")
+    print("|---:|---|---:|---:|---:|---:|")
+    for hidden, pair in pairs.items():
+        for name, timer in pair.items():
+            print(
+                f"| {hidden} | {name} | {timer.parameters:,} | {timer.agent_steps / timer.cpu:,.0f} | "
+                f"{timer.agent_steps / timer.wall:,.0f} | {timer.cpu * timer.per_update / timer.agent_steps:.2f} |"
+            )
+    for hidden, pair in pairs.items():
+        ours, theirs = pair["LatentSwarmPPO"], pair["RecurrentPPO"]
+        ratio = (ours.agent_steps / ours.cpu) / (theirs.agent_steps / theirs.cpu)
+        print(f"hidden {hidden}: LatentSwarmPPO / RecurrentPPO = {ratio:.2f}x (agent-steps per CPU second)")
 
 
 class UpdateTimer:
@@ -131,19 +199,29 @@ def compare_compiled(preset_name: str, iterations: int) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--hidden", type=int, default=64, help="latent size d (ours) and LSTM hidden size (theirs)")
+    parser.add_argument(
+        "--hidden", type=int, nargs="+", default=[64, 512], help="latent size d (ours) and LSTM hidden size (theirs)"
+    )
     parser.add_argument("--n-envs", type=int, default=8)
     parser.add_argument("--n-steps", type=int, default=128)
     parser.add_argument("--chunk-length", type=int, default=32)
     parser.add_argument("--n-epochs", type=int, default=4)
-    parser.add_argument("--iterations", type=int, default=3, help="rollout/update iterations timed")
+    parser.add_argument("--blocks", type=int, default=2, help="alternating timing blocks per model")
+    parser.add_argument("--updates-per-block", type=int, default=1, help="updates per model per block")
+    parser.add_argument("--iterations", type=int, default=3, help="updates timed per backend (--backends, --compile)")
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: the package default)")
     parser.add_argument("--backends", action="store_true", help="compare the vec env backends on a preset's update")
     parser.add_argument("--compile", action="store_true", help="compare the eager and the compiled latent step")
     parser.add_argument("--preset", default="fast", choices=sorted(PRESETS), help="preset of --backends and --compile")
     args = parser.parse_args()
+    counts = [*args.hidden, args.n_envs, args.n_steps, args.chunk_length, args.n_epochs, args.blocks, args.updates_per_block]
+    if min(counts) < 1 or args.iterations < 1:
+        parser.error("--hidden, --n-envs, --n-steps, --chunk-length, --n-epochs, --blocks, --updates-per-block and "
+                     "--iterations must be >= 1")
+    if args.n_steps % args.chunk_length:
+        parser.error(f"--chunk-length {args.chunk_length} must divide --n-steps {args.n_steps}")
     if args.threads:
-        th.set_num_threads(args.threads)
+        set_torch_threads(args.threads)
     if args.backends:
         compare_backends(args.preset, args.iterations)
         return
@@ -151,33 +229,7 @@ def main() -> None:
         compare_compiled(args.preset, args.iterations)
         return
 
-    config = SwarmConfig()
-    batch_size = config.n_agents * args.chunk_length * 4
-    total = args.iterations * args.n_steps * args.n_envs * config.n_agents
-    common = dict(n_steps=args.n_steps, batch_size=batch_size, n_epochs=args.n_epochs, seed=0, device="cpu")
-
-    ours = LatentSwarmPPO(
-        "LatentSwarmPolicy",
-        make_vec_env(args.n_envs, config=config, seed=0),
-        chunk_length=args.chunk_length,
-        policy_kwargs=dict(latent_dim=args.hidden),
-        **common,
-    )
-    theirs = RecurrentPPO(
-        "MultiInputLstmPolicy",
-        make_vec_env(args.n_envs, config=config, seed=0),
-        policy_kwargs=dict(lstm_hidden_size=args.hidden, net_arch=[args.hidden]),
-        **common,
-    )
-    ours_params = sum(p.numel() for p in ours.policy.parameters())
-    theirs_params = sum(p.numel() for p in theirs.policy.parameters())
-    ours_fps = measure(ours, total)
-    theirs_fps = measure(theirs, total)
-    print(f"hidden={args.hidden} n_envs={args.n_envs} n_steps={args.n_steps} batch={batch_size} epochs={args.n_epochs}")
-    print("| model | parameters | agent-steps/s |\n|---|---|---|")
-    print(f"| LatentSwarmPPO (LatentSwarmPolicy) | {ours_params:,} | {ours_fps:,.0f} |")
-    print(f"| RecurrentPPO (MultiInputLstmPolicy) | {theirs_params:,} | {theirs_fps:,.0f} |")
-    print(f"ratio ours/theirs: {ours_fps / theirs_fps:.2f}")
+    compare_recurrent_ppo(args)
 
 
 if __name__ == "__main__":

@@ -49,7 +49,6 @@ from dropout_diagnostics import DEPTH_LABELS, summarize_diagnostics  # noqa: E40
 from sb3_latentswarm import LatentSwarmPPO, SwarmConfig  # noqa: E402
 from sb3_latentswarm.common.atomic import atomic_path, write_text  # noqa: E402
 from sb3_latentswarm.common.checks import check_float, check_int  # noqa: E402
-from sb3_latentswarm.common.run_record import git_commit, write_run_record  # noqa: E402
 from sb3_latentswarm.evaluation import (  # noqa: E402
     CONDITION_LABELS,
     DEPTH_COLUMNS,
@@ -60,6 +59,7 @@ from sb3_latentswarm.evaluation import (  # noqa: E402
     to_markdown,
 )
 from sb3_latentswarm.experiments.aggregate import aggregate_scores  # noqa: E402
+from sb3_latentswarm.experiments.run_record import git_commit, write_run_record  # noqa: E402
 
 DEFAULT_MODELS = tuple(f"docs/results/actor_choice/models/squashed-seed{seed}.zip" for seed in range(3))
 """The committed squashed ``coordination`` models (``proposed`` learners, training seeds 0-2)."""

@@ -860,9 +860,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.threads < 0:
         parser.exit(2, f"sb3-latentswarm {args.command}: error: --threads must be >= 0, got {args.threads}\n")
     if args.threads:
-        import torch
+        from sb3_latentswarm.threads import set_torch_threads
 
-        torch.set_num_threads(args.threads)
+        set_torch_threads(args.threads)  # warns once past the available cores
     try:
         _check_device(args)
         _check_output_folder(args)

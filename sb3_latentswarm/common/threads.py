@@ -10,6 +10,7 @@ from sb3_latentswarm.threads import (
     THREAD_VARIABLES,
     apply_default_torch_threads,
     apply_default_torch_threads_once,
+    set_torch_threads,
 )
 
 warnings.warn(
@@ -18,4 +19,5 @@ warnings.warn(
     stacklevel=2,
 )
 
-__all__ = ["DEFAULT_TORCH_THREADS", "THREAD_VARIABLES", "apply_default_torch_threads", "apply_default_torch_threads_once"]
+__all__ = ["DEFAULT_TORCH_THREADS", "THREAD_VARIABLES", "apply_default_torch_threads", "apply_default_torch_threads_once",
+           "set_torch_threads"]

@@ -47,7 +47,6 @@ KEYS = {
 def train_one(job: tuple[str, str, int, int, str]) -> dict:
     from stable_baselines3.common.logger import configure
 
-    from sb3_latentswarm import LatentSwarmPPO, make_vec_env
     from sb3_latentswarm.presets import get_preset
 
     name, preset_name, updates, seed, folder = job
@@ -56,8 +55,8 @@ def train_one(job: tuple[str, str, int, int, str]) -> dict:
     algo_options, policy_options = OPTION_SETS[name]
     kwargs = {**preset.algo_kwargs, **algo_options}
     kwargs["policy_kwargs"] = {**preset.algo_kwargs["policy_kwargs"], **policy_options}
-    env = make_vec_env(preset.n_envs, config=preset.config, seed=seed)
-    model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=seed, log_grad_norms=True, **kwargs)
+    env = preset.make_env(seed)
+    model = preset.make_model(env, seed=seed, log_grad_norms=True, **kwargs)
     log_dir = Path(folder) / f"option_set_{list(OPTION_SETS).index(name)}"
     model.set_logger(configure(str(log_dir), ["csv"]))
     start = time.process_time()

@@ -33,7 +33,7 @@ from typing import Any
 
 import torch as th
 
-from sb3_latentswarm import LatentSwarmPPO, make_vec_env
+from sb3_latentswarm import LatentSwarmPPO
 from sb3_latentswarm.common.atomic import write_text
 from sb3_latentswarm.envs.vec_env import BACKENDS
 from sb3_latentswarm.presets import PRESETS, get_preset
@@ -244,8 +244,8 @@ def run(args: argparse.Namespace, device: th.device) -> dict[str, Any]:
         kwargs["compile_latent_step"] = True
     if args.autocast is not None:
         kwargs["autocast"] = args.autocast
-    env = make_vec_env(preset.n_envs, config=preset.config, seed=args.seed, backend=args.backend)
-    model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=args.seed, device=device, **kwargs)
+    env = preset.make_env(args.seed, backend=args.backend)
+    model = preset.make_model(env, seed=args.seed, device=device, **kwargs)
     per_update = model.n_steps * model.n_envs
     timer = UpdateProfiler(model)
     timer.install()

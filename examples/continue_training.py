@@ -16,7 +16,6 @@ import torch as th
 from stable_baselines3.common.logger import configure
 
 from sb3_latentswarm import LatentSwarmPPO
-from sb3_latentswarm.envs import make_vec_env
 from sb3_latentswarm.presets import PRESETS, get_preset
 
 
@@ -35,7 +34,7 @@ def main() -> None:
     preset = get_preset(args.preset)
     output = Path(args.output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    env = make_vec_env(preset.n_envs, config=preset.config, seed=args.env_seed)
+    env = preset.make_env(args.env_seed)
     model = LatentSwarmPPO.load(args.model, env=env)
     model.set_logger(configure(str(output.parent), ["stdout", "csv"]))
     start = time.perf_counter()

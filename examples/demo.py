@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from sb3_latentswarm import LatentSwarmPPO, make_vec_env
+from sb3_latentswarm import LatentSwarmPPO
 from sb3_latentswarm.baselines import RandomPlanner
 from sb3_latentswarm.evaluation import CONDITIONS, evaluate, evaluate_conditions, summarize, to_markdown
 from sb3_latentswarm.experiments.trial import EVAL_SEED_BASE
@@ -121,8 +121,8 @@ def main() -> None:
         f"[1/2] Training LatentSwarmPPO on the demo task ({config.grid_width} x {config.grid_height} cells, "
         f"N = {config.n_agents}, T = {config.max_steps}, p_f = {config.p_fail}) for {total:,} agent-steps, seed {args.seed}"
     )
-    env = make_vec_env(preset.n_envs, config=config, seed=args.seed)
-    model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=args.seed, **preset.algo_kwargs)
+    env = preset.make_env(args.seed, config=config)
+    model = preset.make_model(env, seed=args.seed)
     model.learn(total_timesteps=total)
     env.close()
     demo = evaluate_conditions(model, ("proposed", "no_comm"), n_episodes=args.episodes, config=config, **held_out)

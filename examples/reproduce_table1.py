@@ -46,7 +46,6 @@ from sb3_latentswarm.baselines import (
     train_independent_ppo,
 )
 from sb3_latentswarm.common.atomic import atomic_path, probe_writable, write_json, write_text
-from sb3_latentswarm.envs import make_vec_env
 from sb3_latentswarm.evaluation import (
     CONDITION_LABELS,
     HELD_OUT_SEED,
@@ -215,8 +214,8 @@ def main() -> None:
         model = LatentSwarmPPO.load(args.model, device=args.device)
         trained = f"loaded from `{args.model}` ({args.model_notes or 'trained elsewhere; see the notes next to this file'})"
     else:
-        env = make_vec_env(preset.n_envs, config=config, seed=seed)
-        model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=seed, device=args.device, **preset.algo_kwargs)
+        env = preset.make_env(seed, config=config)
+        model = preset.make_model(env, seed=seed, device=args.device)
         model.learn(total_timesteps=preset.total_timesteps, progress_bar=sys.stdout.isatty())
         model.save(output / "model.zip")  # atomic: a failed save leaves no partial file
         trained = f"trained here for {preset.total_timesteps:,} agent-steps ({preset.updates} updates), seed {seed}"
@@ -286,7 +285,7 @@ def main() -> None:
     if args.independent_model:
         independent = IndependentRecurrentPPO.load(args.independent_model, device=args.device)
     elif (args.baseline_timesteps or preset.baseline_timesteps) and not args.no_independent_ppo:
-        independent_env = make_vec_env(preset.n_envs, config=config, seed=seed)
+        independent_env = preset.make_env(seed, config=config)
         independent = train_independent_ppo(independent_env, args.baseline_timesteps or preset.baseline_timesteps, seed)
         independent.save(output / "independent_ppo.zip")
     else:

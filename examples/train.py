@@ -16,8 +16,6 @@ from pathlib import Path
 import torch as th
 from stable_baselines3.common.callbacks import CheckpointCallback
 
-from sb3_latentswarm import LatentSwarmPPO
-from sb3_latentswarm.envs import make_vec_env
 from sb3_latentswarm.evaluation import evaluate, summarize, to_markdown
 from sb3_latentswarm.presets import PRESETS, get_preset
 
@@ -35,10 +33,8 @@ def main() -> None:
 
     preset = get_preset(args.preset)
     output = Path(args.output or f"runs/{preset.name}")
-    env = make_vec_env(preset.n_envs, config=preset.config, seed=args.seed)
-    model = LatentSwarmPPO(
-        "LatentSwarmPolicy", env, seed=args.seed, tensorboard_log=str(output / "tb"), verbose=0, **preset.algo_kwargs
-    )
+    env = preset.make_env(args.seed)
+    model = preset.make_model(env, seed=args.seed, tensorboard_log=str(output / "tb"), verbose=0)
     # a checkpoint every ~10 updates (save_freq counts vec-env steps, i.e. agent-steps / num_envs)
     checkpoints = CheckpointCallback(save_freq=10 * model.n_steps, save_path=str(output / "checkpoints"), name_prefix="model")
     model.learn(total_timesteps=args.total_timesteps or preset.total_timesteps, callback=checkpoints, progress_bar=True)

@@ -182,7 +182,6 @@ def command_train(args: argparse.Namespace) -> int:
         read_checkpoint_state,
     )
     from sb3_latentswarm.common.atomic import probe_writable, write_json
-    from sb3_latentswarm.envs import make_vec_env
     from sb3_latentswarm.latent_ppo import LatentSwarmPPO
     from sb3_latentswarm.latent_ppo.latent_ppo import validate_algorithm_kwargs
 
@@ -214,7 +213,7 @@ def command_train(args: argparse.Namespace) -> int:
     settings["total_timesteps"] = total
     check_int("n_envs", preset.n_envs, low=1)  # before any arithmetic with it
     check_int("n_steps", preset.algo_kwargs["n_steps"], low=1)
-    per_update = preset.algo_kwargs["n_steps"] * preset.n_envs * preset.config.n_agents
+    per_update = preset.agent_steps_per_update
     stored = state.get("settings") or {}
     if args.save_freq is None:  # the run's own frequency on --resume (not compared: it changes no result)
         args.save_freq = stored.get("save_freq", default_save_freq(total, per_update))
@@ -230,21 +229,13 @@ def command_train(args: argparse.Namespace) -> int:
 
         check_held_out(_eval_seed(args), preset.eval_episodes, args.seed, preset.n_envs)
     # every setting is checked here, by building the env and the model, before any folder is created
-    env = make_vec_env(preset.n_envs, config=preset.config, seed=args.seed, backend=args.backend)
+    env = preset.make_env(args.seed, backend=args.backend)
     tensorboard = args.tensorboard if args.tensorboard is not None else (state.get("settings") or {}).get("tensorboard")
     if state:
         model = LatentSwarmPPO.load_checkpoint(latest, env=env, device=args.device, tensorboard_log=tensorboard)
         model.verbose = args.verbose
     else:
-        model = LatentSwarmPPO(
-            "LatentSwarmPolicy",
-            env,
-            seed=args.seed,
-            device=args.device,
-            verbose=args.verbose,
-            tensorboard_log=tensorboard,
-            **preset.algo_kwargs,
-        )
+        model = preset.make_model(env, seed=args.seed, device=args.device, verbose=args.verbose, tensorboard_log=tensorboard)
     tb_log_name = f"latentswarm_{preset.name}"
     tensorboard_run = (state.get("settings") or {}).get("tensorboard_run")
     if tensorboard is not None and tensorboard_run is None:

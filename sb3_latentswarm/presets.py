@@ -44,8 +44,7 @@ class Preset:
     @property
     def updates(self) -> int:
         """Number of rollout/update iterations the budget gives."""
-        per_update = self.algo_kwargs["n_steps"] * self.n_envs * self.config.n_agents
-        return max(1, -(-self.total_timesteps // per_update))
+        return max(1, -(-self.total_timesteps // self.agent_steps_per_update))
 
     def independent_ppo_kwargs(self) -> dict[str, Any]:
         """``RecurrentPPO`` keyword arguments giving the ``independent`` baseline this preset's PPO settings.
@@ -69,6 +68,39 @@ class Preset:
         )
         kwargs["policy_kwargs"] = dict(log_std_init=log_std_init)
         return kwargs
+
+    @property
+    def agent_steps_per_update(self) -> int:
+        """Agent-steps one rollout/update iteration collects: ``n_steps * n_envs * n_agents``."""
+        return int(self.algo_kwargs["n_steps"]) * self.n_envs * self.config.n_agents
+
+    def make_env(self, seed: int | None = 0, *, config: SwarmConfig | None = None, backend: str = "batched") -> Any:
+        """The preset's training ``VecEnv``: :attr:`n_envs` swarms of :attr:`config` (or ``config``), one slot per agent.
+
+        The one path from a preset to an env (the CLI, the sweep trials, the examples and the benchmarks use it).
+
+        :param seed: base seed: swarm copy ``c`` uses ``seed + c``
+        :param config: another env config (e.g. ``link_mode="none"`` for the ``no_comm`` learner); default the preset's
+        :param backend: ``"batched"`` (one vectorized core) or ``"supersuit"``
+        :return: an SB3 ``VecMonitor`` with ``num_envs = n_envs * n_agents``
+        :raise ValueError: for a bad config, backend or ``n_envs`` (from :func:`~sb3_latentswarm.envs.make_vec_env`)
+        """
+        from sb3_latentswarm.envs import make_vec_env
+
+        return make_vec_env(self.n_envs, config=self.config if config is None else config, seed=seed, backend=backend)
+
+    def make_model(self, env: Any, *, seed: int | None = 0, **kwargs: Any) -> Any:
+        """``LatentSwarmPPO("LatentSwarmPolicy", env, seed=seed, **algo_kwargs)`` with :attr:`algo_kwargs` and ``kwargs``.
+
+        The one path from a preset to a model. ``kwargs`` (``device``, ``verbose``, ``tensorboard_log``, ...) are added
+        to the preset's arguments; a name in both takes the value of ``kwargs``.
+
+        :param env: the env of :meth:`make_env` (or any VecEnv of the same config)
+        :raise ValueError, TypeError: for bad settings (from ``LatentSwarmPPO`` and its policy)
+        """
+        from sb3_latentswarm.latent_ppo import LatentSwarmPPO
+
+        return LatentSwarmPPO("LatentSwarmPolicy", env, seed=seed, **{**self.algo_kwargs, **kwargs})
 
     def with_overrides(self, **overrides: Any) -> Preset:
         """A copy with settings replaced, each routed by its name (see :func:`override_targets`).

@@ -86,12 +86,11 @@ def check_training_settings(preset: Preset, where: str, variants: Sequence[str] 
     :param where: names the settings in the message (``"--set {...}, --grid point {'p_fail': 0.1}"``)
     :raises ValueError, TypeError: with the setting's own message, prefixed by ``where``
     """
-    from sb3_latentswarm.envs import make_vec_env
     from sb3_latentswarm.latent_ppo import LatentSwarmPPO
 
     variants = [v for v in variants if v != "independent"] or ["proposed"]
     try:
-        env = make_vec_env(preset.n_envs, config=preset.config, seed=0)
+        env = preset.make_env(0)
         try:
             for variant in variants:
                 algo_kwargs = variant_algo_kwargs(variant, preset.algo_kwargs)

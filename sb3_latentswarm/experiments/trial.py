@@ -243,7 +243,6 @@ def train_and_evaluate(
         read_checkpoint_state,
     )
     from sb3_latentswarm.common.atomic import atomic_path, probe_writable, write_json
-    from sb3_latentswarm.envs import make_vec_env
     from sb3_latentswarm.experiments.run_record import machine_summary
     from sb3_latentswarm.latent_ppo import LatentSwarmPPO
 
@@ -253,7 +252,7 @@ def train_and_evaluate(
     # no_comm trains the same architecture with every link down; it is evaluated on the same env as the others
     train_config = preset.config.replace(link_mode="none") if variant == "no_comm" else preset.config
     env_seed = training_env_seed(train_seed, preset.n_envs)
-    env = make_vec_env(preset.n_envs, config=train_config, seed=env_seed)
+    env = preset.make_env(env_seed, config=train_config)
     progress = TuneProgress(report)
     output = Path(output)
     checkpoint_dir = output / TRIAL_CHECKPOINTS
@@ -281,9 +280,8 @@ def train_and_evaluate(
         if latest is not None:
             latent = LatentSwarmPPO.load_checkpoint(latest, env=env, device=device)
         else:
-            algo_kwargs = variant_algo_kwargs(variant, preset.algo_kwargs)
-            latent = LatentSwarmPPO("LatentSwarmPolicy", env, seed=train_seed, device=device, **algo_kwargs)
-        per_update = preset.algo_kwargs["n_steps"] * preset.n_envs * preset.config.n_agents
+            latent = preset.make_model(env, seed=train_seed, device=device, **variant_algo_kwargs(variant, preset.algo_kwargs))
+        per_update = preset.agent_steps_per_update
         freq = default_save_freq(preset.total_timesteps, per_update) if save_freq is None else save_freq
         with StopOnSignal() as stop:
             checkpoints = SwarmCheckpointCallback(

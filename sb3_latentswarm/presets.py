@@ -289,9 +289,11 @@ def _coordination() -> Preset:
     # 7.5 m corner square and a horizon that binds: an ideal sweep of the 400 cells needs 400 / (3 * 5 * 0.5) = 53 of
     # the T = 80 steps. Coordinated planners cover 97-100 %, the best message-free heuristic 72 % (benchmarks/
     # coordination_gap.py, table in docs/env.md). b_0 / kappa = T as in the paper: the horizon is the energy budget.
-    # Training options are provisional: one update measured 0.94x a `fast` update (benchmarks/update_time.py, same
-    # load), i.e. ~4.3 s on one unloaded thread, so 200 updates (1.54M agent-steps) take ~15 min: three training seeds
-    # of three learners fit in about 1.5 h on the 2 cores (the multi-seed experiment of docs/results/coordination).
+    # Training options chosen for time to a trained swarm (docs/results/coordination_time_to_coverage/, issue 21):
+    # minibatches of 3,840 agent-steps (2 per epoch), 3 epochs and a learning rate of 6e-4 cost 1.81x fewer CPU seconds
+    # per update than the first round's 1,920 / 5 / 3e-4 (interleaved in one run) and reach the first round's final
+    # training coverage (95 %) 1.46x sooner in CPU seconds (3 seeds each; 0.82x the agent-steps); 300 updates (2.3M
+    # agent-steps), where the curves have flattened, still cost 1.2x less CPU than the first round's 200.
     horizon = 80
     config = SwarmConfig(
         grid_width=20,
@@ -306,18 +308,25 @@ def _coordination() -> Preset:
         start_region="corner",
         start_region_size=7.5,
     )
-    n_envs, n_steps, updates = 16, 160, 200
+    n_envs, n_steps, updates = 16, 160, 300
     return Preset(
         name="coordination",
         config=config,
         n_envs=n_envs,
         total_timesteps=updates * n_steps * n_envs * config.n_agents,
         algo_kwargs=_algo_kwargs(
-            n_steps=n_steps, chunk_length=20, batch_size=1920, latent_dim=64, hidden=128, learning_rate=3e-4, mappo=True
+            n_steps=n_steps,
+            chunk_length=20,
+            batch_size=3840,
+            latent_dim=64,
+            hidden=128,
+            learning_rate=6e-4,
+            n_epochs=3,
+            mappo=True,
         ),
         baseline_timesteps=updates * n_steps * n_envs * config.n_agents,
         eval_episodes=50,
-        description="20x20 cells of 2.5 m, corner launch, T=80: message-free heuristics lose 28 points (~15 min, 1 thread).",
+        description="20x20 cells of 2.5 m, corner launch, T=80: message-free heuristics lose 28 points (~10 min, 1 thread).",
     )
 
 
@@ -332,7 +341,8 @@ def _random_corner() -> Preset:
     # steps, half an episode): with four peers a UAV is cut off only when all four in-links are down, which at the
     # paper's Bernoulli p_f = 0.3 happens on 4 % of the planner's agent-steps in runs of 1.1 steps.
     # n_envs * n_steps * N = 16 * 96 * 5 = 7,680 agent-steps per update, as in `coordination` (16 * 160 * 3); 96 steps
-    # are two episodes; chunks of 24 steps (4 per rollout), minibatches of 16 swarm chunks.
+    # are two episodes; chunks of 24 steps (4 per rollout); `coordination`'s training options (minibatches of 3,840
+    # agent-steps, 3 epochs, learning rate 6e-4, 300 updates).
     horizon = 48
     config = _coordination().config.replace(
         n_agents=5,
@@ -343,14 +353,21 @@ def _random_corner() -> Preset:
         outage_model="gilbert_elliott",
         mean_outage_steps=25.0,
     )
-    n_envs, n_steps, updates = 16, 96, 200
+    n_envs, n_steps, updates = 16, 96, 300
     return Preset(
         name="random_corner",
         config=config,
         n_envs=n_envs,
         total_timesteps=updates * n_steps * n_envs * config.n_agents,
         algo_kwargs=_algo_kwargs(
-            n_steps=n_steps, chunk_length=24, batch_size=1920, latent_dim=64, hidden=128, learning_rate=3e-4, mappo=True
+            n_steps=n_steps,
+            chunk_length=24,
+            batch_size=3840,
+            latent_dim=64,
+            hidden=128,
+            learning_rate=6e-4,
+            n_epochs=3,
+            mappo=True,
         ),
         baseline_timesteps=updates * n_steps * n_envs * config.n_agents,
         eval_episodes=50,

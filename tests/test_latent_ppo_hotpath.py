@@ -111,12 +111,15 @@ def test_train_reads_the_device_once_per_minibatch():
 
 
 def test_gaussians_are_built_without_argument_validation():
+    # whatever earlier code in this process chose (torch._dynamo, used by the compile tests, switches it off globally)
+    global_default = th.distributions.Distribution._validate_args
     for distribution in ("gaussian", "squashed_gaussian"):
         model = collected_model(policy_kwargs={**TINY_POLICY, "action_distribution": distribution}, n_epochs=1)
         policy = model.policy
         dist = policy.action_distribution(th.zeros(4, policy.task_dim))
         assert dist.distribution._validate_args is False
-        assert th.distributions.Distribution._validate_args  # the global default is left alone
+        assert th.distributions.Distribution._validate_args is global_default  # the global default is left alone
+        assert th.distributions.Normal(0.0, 1.0, validate_args=None)._validate_args is global_default
         with HostReads() as reads:
             dist.log_prob(th.zeros(4, policy.action_dim))
         assert sum(reads.count.values()) == 0

@@ -249,6 +249,13 @@ def plot_regimes(summary: pd.DataFrame, conditions: tuple[str, ...], path: Path,
             axes[row, column].grid(alpha=0.3, which="both")
     for row in range(2):
         axes[row, 0].set_ylabel("coverage (%)")
+    _finish(fig, axes, title, path)
+
+
+def _finish(fig, axes, title: str, path: Path) -> None:  # noqa: ANN001 - matplotlib objects
+    """Legend, title, layout, then the figure written atomically and closed."""
+    import matplotlib.pyplot as plt
+
     axes[0, 0].legend(fontsize=7)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
@@ -286,12 +293,7 @@ def plot_error_by_depth(summary: pd.DataFrame, conditions: tuple[str, ...], path
         axis.set_title(_outage_label(length), fontsize=9)
         axis.grid(alpha=0.3, which="both")
     axes[0, 0].set_ylabel("squared error per element\nvs full-connectivity message")
-    axes[0, 0].legend(fontsize=7)
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
+    _finish(fig, axes, title, path)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -353,22 +353,14 @@ def _random_corner() -> Preset:
         outage_model="gilbert_elliott",
         mean_outage_steps=25.0,
     )
-    n_envs, n_steps, updates = 16, 96, 300
+    coordination = _coordination()
+    n_envs, n_steps, updates = coordination.n_envs, 96, coordination.updates
     return Preset(
         name="random_corner",
         config=config,
         n_envs=n_envs,
         total_timesteps=updates * n_steps * n_envs * config.n_agents,
-        algo_kwargs=_algo_kwargs(
-            n_steps=n_steps,
-            chunk_length=24,
-            batch_size=3840,
-            latent_dim=64,
-            hidden=128,
-            learning_rate=6e-4,
-            n_epochs=3,
-            mappo=True,
-        ),
+        algo_kwargs={**coordination.algo_kwargs, "n_steps": n_steps, "chunk_length": 24},
         baseline_timesteps=updates * n_steps * n_envs * config.n_agents,
         eval_episodes=50,
         description="coordination with N=5, a launch corner drawn per episode, T=48, bursty outages (p_f 0.5, mean 25).",

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch as th
 from gymnasium import spaces
+from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.distributions import SquashedDiagGaussianDistribution
 from torch.distributions import Normal, TanhTransform, TransformedDistribution
 
@@ -211,7 +212,9 @@ def test_replayed_log_probs_match_the_rollout(action_distribution):
     else:
         assert np.abs(buffer.actions).max() > 1.0  # the Gaussian's samples, before the env's clip
     # the update changed the policy: collect again with it, then replay
-    model.collect_rollouts(model.env, _NoCallback(), buffer, model.n_steps)
+    callback = CallbackList([])  # SB3's no-op callback
+    callback.init_callback(model)
+    model.collect_rollouts(model.env, callback, buffer, model.n_steps)
     max_diff = 0.0
     with th.no_grad():
         for batch in buffer.get(model.batch_size):
@@ -221,20 +224,6 @@ def test_replayed_log_probs_match_the_rollout(action_distribution):
             max_diff = max(max_diff, (evaluation.log_prob - batch.old_log_prob).abs().max().item())
             assert th.isfinite(evaluation.entropy).all()
     assert max_diff < 1e-5
-
-
-class _NoCallback:
-    def on_rollout_start(self):
-        pass
-
-    def on_rollout_end(self):
-        pass
-
-    def update_locals(self, _):
-        pass
-
-    def on_step(self):
-        return True
 
 
 # ---------------------------------------------------------------------------------------------- model files

@@ -5,6 +5,7 @@ import copy
 import numpy as np
 import pytest
 import torch as th
+from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_latentswarm import LatentSwarmPPO, SwarmConfig
@@ -173,22 +174,10 @@ def collected_model(swarm_keys=None, **kwargs):
             swarm_keys=swarm_keys,
         )
     model.learn(total_timesteps=1, log_interval=None)  # sets up the logger and env, collects one rollout, trains once
-    model.collect_rollouts(model.env, _NoCallback(), model.rollout_buffer, model.n_steps)
+    callback = CallbackList([])  # SB3's no-op callback
+    callback.init_callback(model)
+    model.collect_rollouts(model.env, callback, model.rollout_buffer, model.n_steps)
     return model
-
-
-class _NoCallback:
-    def on_rollout_start(self):
-        pass
-
-    def on_rollout_end(self):
-        pass
-
-    def update_locals(self, _):
-        pass
-
-    def on_step(self):
-        return True
 
 
 def test_recomputed_log_probs_match_collection():

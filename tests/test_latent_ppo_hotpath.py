@@ -8,6 +8,7 @@ import sys
 import numpy as np
 import pytest
 import torch as th
+from stable_baselines3.common.callbacks import CallbackList
 from torch.overrides import TorchFunctionMode
 
 from sb3_latentswarm import LatentSwarmPPO, SwarmConfig
@@ -37,26 +38,14 @@ class HostReads(TorchFunctionMode):
         return func(*args, **(kwargs or {}))
 
 
-class _NoCallback:
-    def on_rollout_start(self):
-        pass
-
-    def on_rollout_end(self):
-        pass
-
-    def update_locals(self, _):
-        pass
-
-    def on_step(self):
-        return True
-
-
 def collected_model(policy_kwargs=TINY_POLICY, **kwargs):
     params = dict(n_steps=20, chunk_length=5, batch_size=30, n_epochs=2, policy_kwargs=policy_kwargs, seed=0)
     params.update(kwargs)
     model = LatentSwarmPPO("LatentSwarmPolicy", make_vec_env(2, config=SMALL, seed=0), **params)
     model.learn(total_timesteps=1, log_interval=None)  # sets up the logger and env, collects one rollout, trains once
-    model.collect_rollouts(model.env, _NoCallback(), model.rollout_buffer, model.n_steps)
+    callback = CallbackList([])  # SB3's no-op callback
+    callback.init_callback(model)
+    model.collect_rollouts(model.env, callback, model.rollout_buffer, model.n_steps)
     return model
 
 

@@ -51,6 +51,20 @@ def test_claims_on_known_scores():
     assert "no_comm" in rows[0]["measured"]  # the stronger message-free learner is named
 
 
+def test_claim_3_compares_the_learners_trained_with_another_substitute():
+    scores = synthetic_scores(proposed=90.0)
+    extra = scores[(scores["variant"] == "proposed") & (scores["condition"] == "proposed")
+                   & (scores["eval_set"] == "table1")]
+    trained = [extra.assign(variant=variant, trial_id=extra["trial_id"].str.replace("proposed", variant),
+                            coverage=extra["coverage"] - gap)
+               for variant, gap in (("zero_substitute", 7.0), ("hold_last", 2.0))]
+    got = verdicts(paper_claims.check_claims(pd.concat([scores, *trained]), "table1", {"table1": 10}, []))
+    assert got["3. mean outage 10 steps: Proposed vs trained zero_substitute"] == "yes"  # 7 points
+    assert got["3. mean outage 10 steps: Proposed vs trained hold_last"] == "no"  # 2 points
+    assert "3. mean outage 10 steps: Proposed vs trained hold_last" not in verdicts(  # absent learners: no row
+        paper_claims.check_claims(scores, "table1", {"table1": 10}, []))
+
+
 def test_claims_that_fail_are_reported_as_failed():
     scores = synthetic_scores(proposed=80.0, no_comm=75.0, full_comm=70.0, collisions=20.0)
     got = verdicts(paper_claims.check_claims(scores, "table1", {}, ["p_fail=0", "p_fail=0.5"]))

@@ -15,6 +15,11 @@ and mean dropout run (a UAV is in dropout when it has no live in-link: distance 
 several peers is in dropout only when all its links fail), and the substitute's squared error against the
 full-connectivity message by dropout depth (:mod:`sb3_latentswarm.evaluation.diagnostics`).
 
+Models trained with another substitute in place of the prediction (the sweep's ``zero_substitute`` and ``hold_last``
+learners, ``message_substitute`` "zero" / "hold_last") are recognized from their files and evaluated under
+``--learner-conditions`` (default ``proposed``: their own substitute, the setting they were trained in); they appear
+as their own lines ("zero_substitute learner", "hold_last learner") beside the proposed models' conditions.
+
 Writes into ``--output``:
 
 - ``cells.csv``: one row per (model, actions, p_f, mean outage, condition), rewritten atomically after every cell.
@@ -69,11 +74,15 @@ P_FAILS = (0.0, 0.15, 0.3, 0.5, 0.7, 0.9, 1.0)
 """The link failure probabilities p_f of the grid."""
 MEAN_OUTAGES = (1.0, 10.0, 25.0, 50.0)
 """The mean outage lengths of the grid, in steps; 1 stands for independent Bernoulli draws (Eq. (1))."""
+LEARNERS = {"predicted": "proposed", "zero": "zero_substitute", "hold_last": "hold_last"}
+"""The learner a model file is, from the substitute it was trained with (``LatentSwarmPolicy.message_substitute``)."""
+LEARNER_LABELS = {"zero_substitute": "Trained with zeros", "hold_last": "Trained with hold-last"}
+"""Figure and table labels of the trained-substitute learners' lines."""
 KEY_COLUMNS = ("model", "actions", "p_fail", "mean_outage", "condition")
 """The columns that name one cell of ``cells.csv``."""
 METRICS = ("coverage", "collisions", "dropout_share", "dropout_run_mean", "pred_error_dropout", *DEPTH_COLUMNS)
 """Per-cell means over the episodes (NaN-ignoring for the error columns), aggregated across models."""
-CELL_COLUMNS = (*KEY_COLUMNS, "outage_model", "episodes", "eval_seed", *METRICS, "episodes_deepest", "seconds")
+CELL_COLUMNS = (*KEY_COLUMNS, "learner", "outage_model", "episodes", "eval_seed", *METRICS, "episodes_deepest", "seconds")
 """The columns of ``cells.csv``, in order."""
 
 
@@ -123,6 +132,8 @@ def read_cells(path: Path, episodes: int, eval_seed: int) -> pd.DataFrame:
     if not path.exists():
         return pd.DataFrame(columns=list(CELL_COLUMNS))
     cells = pd.read_csv(path)
+    if "learner" not in cells.columns:  # tables written before trained-substitute learners were mapped: proposed models
+        cells.insert(len(KEY_COLUMNS), "learner", "proposed")
     missing = sorted(set(CELL_COLUMNS) - set(cells.columns))
     if missing:
         raise ValueError(f"{path} is not a cells table of this script (missing columns {missing}); use another --output")
@@ -138,6 +149,22 @@ def read_cells(path: Path, episodes: int, eval_seed: int) -> pd.DataFrame:
 
 def cell_key(model: str, actions: str, p_fail: float, mean_outage: float, condition: str) -> tuple:
     return (model, actions, round(float(p_fail), 9), round(float(mean_outage), 9), condition)
+
+
+def series_name(learner: str, condition: str) -> str:
+    """The line a cell belongs to: the condition for ``proposed`` models, else the trained learner (and the condition
+    when it is not the learner's own setting)."""
+    if learner == "proposed":
+        return condition
+    return f"{learner} learner" if condition == "proposed" else f"{learner} learner, {condition}"
+
+
+def series_label(name: str) -> str:
+    """The figure / table label of a :func:`series_name`."""
+    if name in CONDITION_LABELS:
+        return CONDITION_LABELS[name]
+    learner, _, rest = name.partition(" learner")
+    return LEARNER_LABELS.get(learner, learner) + rest
 
 
 def write_csv(path: Path, table: pd.DataFrame) -> None:
@@ -158,8 +185,12 @@ def evaluate_cell(model: LatentSwarmPPO, condition: str, config: SwarmConfig, ep
 
 def summarize_regimes(cells: pd.DataFrame) -> pd.DataFrame:
     """Across-model mean and stratified-bootstrap 95 % interval of every metric, per (actions, p_f, mean outage,
-    condition): long format of :func:`~sb3_latentswarm.experiments.aggregate.aggregate_scores`."""
-    return aggregate_scores(cells, by=("actions", "p_fail", "mean_outage", "condition"), metrics=METRICS)
+    line): long format of :func:`~sb3_latentswarm.experiments.aggregate.aggregate_scores`; the ``condition`` column
+    holds the line's :func:`series_name` (the condition itself for ``proposed`` models)."""
+    learners = cells["learner"] if "learner" in cells.columns else pd.Series("proposed", index=cells.index)
+    lines = [series_name(learner, condition) for learner, condition in zip(learners, cells["condition"])]
+    return aggregate_scores(cells.assign(condition=lines), by=("actions", "p_fail", "mean_outage", "condition"),
+                            metrics=METRICS)
 
 
 def regimes_markdown(summary: pd.DataFrame, conditions: tuple[str, ...]) -> str:
@@ -180,7 +211,7 @@ def regimes_markdown(summary: pd.DataFrame, conditions: tuple[str, ...]) -> str:
         }
         for condition in conditions:
             key = (actions, p_fail, mean_outage, condition, "coverage")
-            row[CONDITION_LABELS[condition]] = (
+            row[series_label(condition)] = (
                 f"{wide.loc[key, 'mean']:.1f} [{wide.loc[key, 'mean_low']:.1f}, {wide.loc[key, 'mean_high']:.1f}]"
                 if key in wide.index else ""
             )
@@ -240,7 +271,7 @@ def plot_regimes(summary: pd.DataFrame, conditions: tuple[str, ...], path: Path,
                 error = np.abs(np.stack([y - ordered[("mean_low", "coverage")].to_numpy(float),
                                          ordered[("mean_high", "coverage")].to_numpy(float) - y]))
                 axes[row, column].errorbar(x, y, yerr=error, marker="o", markersize=3, capsize=2,
-                                           label=CONDITION_LABELS[condition])
+                                           label=series_label(condition))
         axes[0, column].set_title(_outage_label(length), fontsize=9)
         axes[0, column].set_xlabel("measured share of agent-steps in dropout")
         axes[1, column].set_xlabel("measured mean dropout run (steps)")
@@ -286,7 +317,7 @@ def plot_error_by_depth(summary: pd.DataFrame, conditions: tuple[str, ...], path
                 continue
             by_depth = rows.groupby("metric")["mean"].mean().reindex(list(DEPTH_COLUMNS)).to_numpy(float)
             values.append(by_depth)
-            axis.plot(positions, by_depth, marker="o", label=CONDITION_LABELS[condition])
+            axis.plot(positions, by_depth, marker="o", label=series_label(condition))
         axis.set_xticks(positions, DEPTH_LABELS)
         _log_scale(axis, "y", values)
         axis.set_xlabel("dropout depth (steps)")
@@ -300,7 +331,10 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--models", nargs="+", default=list(DEFAULT_MODELS),
                         help="saved LatentSwarmPPO files, one per training seed (each evaluated on its training config)")
-    parser.add_argument("--conditions", nargs="+", default=list(REGIME_CONDITIONS), help="test-time conditions")
+    parser.add_argument("--conditions", nargs="+", default=list(REGIME_CONDITIONS),
+                        help="test-time conditions of the proposed models")
+    parser.add_argument("--learner-conditions", nargs="+", default=["proposed"],
+                        help="test-time conditions of models trained with another substitute (default: their own)")
     parser.add_argument("--episodes", type=int, default=100, help="held-out episodes per cell and model")
     parser.add_argument("--eval-seed", type=int, default=HELD_OUT_SEED, help="episode k uses env seed eval_seed + k")
     parser.add_argument("--p-fail", type=float, nargs="+", default=list(P_FAILS), help="link failure probabilities")
@@ -314,10 +348,13 @@ def main(argv: list[str] | None = None) -> None:
         check_int("--episodes", args.episodes, 1)
         check_int("--eval-seed", args.eval_seed, 0)
         conditions = tuple(dict.fromkeys(check_condition(c).name for c in args.conditions))
+        learner_conditions = tuple(dict.fromkeys(check_condition(c).name for c in args.learner_conditions))
         regimes = regime_grid(tuple(args.p_fail), tuple(args.mean_outage))
         missing = [m for m in args.models if not Path(m).is_file()]
         if missing:
             raise ValueError(f"--models: no file at {missing}")
+        models = list(dict.fromkeys(args.models))
+        learner_of = {m: LEARNERS[LatentSwarmPPO.load(m, device="cpu").policy.message_substitute] for m in models}
         output = Path(args.output)
         cells = read_cells(output / "cells.csv", args.episodes, args.eval_seed)
     except (TypeError, ValueError) as error:
@@ -326,11 +363,12 @@ def main(argv: list[str] | None = None) -> None:
     commit = git_commit()
     output.mkdir(parents=True, exist_ok=True)
     done = {cell_key(*row) for row in cells[list(KEY_COLUMNS)].itertuples(index=False)}
-    models = list(dict.fromkeys(args.models))
-    total = len(models) * len(regimes) * len(conditions)
-    todo = [(m, r, c) for m in models for r in regimes for c in conditions
-            if cell_key(m, args.actions, r.p_fail, r.mean_outage, c) not in done]
-    print(f"{total} cells ({len(models)} models x {len(regimes)} regimes x {len(conditions)} conditions), "
+    plan = [(m, r, c) for m in models for r in regimes
+            for c in (conditions if learner_of[m] == "proposed" else learner_conditions)]
+    total = len(plan)
+    todo = [(m, r, c) for m, r, c in plan if cell_key(m, args.actions, r.p_fail, r.mean_outage, c) not in done]
+    counts = pd.Series(list(learner_of.values())).value_counts().to_dict()
+    print(f"{total} cells ({len(models)} models {counts} x {len(regimes)} regimes x their conditions), "
           f"{total - len(todo)} already in {output / 'cells.csv'}, {len(todo)} to run", flush=True)
     start = time.perf_counter()
     loaded: dict[str, LatentSwarmPPO] = {}
@@ -345,8 +383,8 @@ def main(argv: list[str] | None = None) -> None:
         metrics = evaluate_cell(model, condition, config, args.episodes, args.eval_seed, args.actions)
         row = {
             "model": model_path, "actions": args.actions, "p_fail": regime.p_fail, "mean_outage": regime.mean_outage,
-            "condition": condition, "outage_model": config.outage_model, "episodes": args.episodes,
-            "eval_seed": args.eval_seed, **metrics, "seconds": time.perf_counter() - cell_start,
+            "condition": condition, "learner": learner_of[model_path], "outage_model": config.outage_model,
+            "episodes": args.episodes, "eval_seed": args.eval_seed, **metrics, "seconds": time.perf_counter() - cell_start,
         }
         records.append(row)
         cells = pd.DataFrame(records, columns=list(CELL_COLUMNS))
@@ -359,20 +397,24 @@ def main(argv: list[str] | None = None) -> None:
     cells = cells[cells["actions"] == args.actions]
     summary = summarize_regimes(cells)
     write_csv(output / "regimes.csv", summary)
-    markdown = regimes_markdown(summary, conditions)
+    lines = tuple(dict.fromkeys([*conditions, *(series_name(learner_of[m], c) for m in models if learner_of[m] != "proposed"
+                                                for c in learner_conditions)]))
+    markdown = regimes_markdown(summary, lines)
     seeds = seed_range(args.eval_seed, args.episodes)
     write_text(output / "regimes.md",
                f"Coverage (%) across {len(models)} model(s): mean [95 % stratified-bootstrap interval]; episode {seeds}, "
                f"{args.actions} actions; dropout share and run measured under Proposed.\n\n{markdown}\n")
     setting = f"{len(models)} model(s), {args.episodes} episodes per cell, {args.actions} actions"
-    plot_regimes(summary, conditions, output / "coverage_vs_dropout.png",
+    plot_regimes(summary, lines, output / "coverage_vs_dropout.png",
                  f"Coverage vs measured dropout ({setting}; 95 % intervals across models)")
-    plot_error_by_depth(summary, conditions, output / "error_by_depth.png",
+    plot_error_by_depth(summary, lines, output / "error_by_depth.png",
                         f"Substitute message error by dropout depth ({setting})")
     n_done = len(cells)
     facts = [
         f"models: {', '.join(f'`{m}`' for m in models)}, each evaluated on its training config with the channel replaced",
-        f"conditions: {', '.join(conditions)}; regimes: p_f in {sorted({r.p_fail for r in regimes})} x mean outage in "
+        f"conditions: {', '.join(conditions)} (proposed models), {', '.join(learner_conditions)} (models trained with "
+        f"another substitute: {sum(v != 'proposed' for v in learner_of.values())})",
+        f"regimes: p_f in {sorted({r.p_fail for r in regimes})} x mean outage in "
         f"{sorted({r.mean_outage for r in regimes})} steps (1: Bernoulli; p_f 0 and 1 once)",
         f"episodes: {args.episodes} per cell and model, episode {seeds} (held out from training), {args.actions} actions",
         f"cells: {n_done} of {total} in cells.csv ({len(todo)} run now in {seconds:.0f} s"

@@ -102,6 +102,24 @@ def test_dropout_regimes_writes_cells_table_figures_and_resumes(smoke_model, tmp
     assert len(pd.read_csv(tmp_path / "cells.csv")) == 8
 
 
+def test_dropout_regimes_maps_a_learner_trained_with_another_substitute_as_its_own_line(smoke_model, tmp_path):
+    trained = LatentSwarmPPO.load(smoke_model)
+    trained.policy_kwargs["message_substitute"] = trained.policy.message_substitute = "zero"  # a zero_substitute learner
+    trained_path = tmp_path / "zero_substitute.zip"
+    trained.save(trained_path)
+    dropout_regimes.main(["--models", smoke_model, str(trained_path), "--episodes", "2", "--p-fail", "0.5",
+                          "--mean-outage", "1", "--conditions", "proposed", "no_predictor", "--output", str(tmp_path / "out")])
+    cells = pd.read_csv(tmp_path / "out" / "cells.csv")
+    assert sorted(zip(cells["learner"], cells["condition"])) == [
+        ("proposed", "no_predictor"), ("proposed", "proposed"), ("zero_substitute", "proposed")]  # its own setting only
+    lines = set(pd.read_csv(tmp_path / "out" / "regimes.csv")["condition"])
+    assert lines == {"proposed", "no_predictor", "zero_substitute learner"}  # not merged into the proposed models' line
+    # the zero-substitute learner in its own setting is the proposed model under No predictor: the same episodes
+    coverage = cells.set_index(["learner", "condition"])["coverage"]
+    assert coverage[("zero_substitute", "proposed")] == coverage[("proposed", "no_predictor")]
+    assert "Trained with zeros" in (tmp_path / "out" / "regimes.md").read_text()
+
+
 def test_dropout_regimes_refuses_to_mix_episode_counts_before_any_work(smoke_model, tmp_path, capsys):
     dropout_regimes.main(["--models", smoke_model, "--episodes", "1", "--p-fail", "0", "--conditions", "proposed",
                           "--output", str(tmp_path)])

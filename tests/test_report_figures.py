@@ -1,5 +1,6 @@
-"""The sweep report's figures: the claims' point-and-interval rows and the per-evaluation-set interval panels."""
+"""The sweep report: the claims' point-and-interval rows, the per-evaluation-set interval panels and the plateau table."""
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -41,3 +42,25 @@ def test_a_cell_must_select_exactly_one_row(tmp_path):
         plot_cells(aggregate(), [("both", {"eval_set": "table1", "condition": "proposed"})], tmp_path / "x.png")
     with pytest.raises(ValueError, match="selects 0 rows"):
         plot_cells(aggregate(), [("none", {"eval_set": "burst30"})], tmp_path / "x.png")
+
+
+def test_training_plateau_slope_tells_a_rising_curve_from_a_flat_one():
+    from sb3_latentswarm.experiments.report import training_plateau
+
+    steps = np.arange(1, 31) * 100_000.0  # 30 reports, 3M agent-steps
+    rows = []
+    for seed in range(2):
+        rows += [dict(agent_steps=s, coverage=50 + 10 * s / 1e6 + seed, trial_id=f"rising-seed{seed}", variant="rising",
+                      train_seed=seed) for s in steps]  # +10 points per 1M agent-steps
+        rows += [dict(agent_steps=s, coverage=90.0 + seed, trial_id=f"flat-seed{seed}", variant="flat", train_seed=seed)
+                 for s in steps]
+    plateau = training_plateau(pd.DataFrame(rows), []).set_index("variant")
+    assert plateau.loc["rising", "slope_per_M"] == pytest.approx(10.0)
+    assert plateau.loc["flat", "slope_per_M"] == pytest.approx(0.0, abs=1e-9)
+    assert plateau.loc["flat", "final_coverage"] == pytest.approx(90.5)  # across-seed mean of the last third
+    assert (plateau.loc["flat", "final_coverage_min"], plateau.loc["flat", "final_coverage_max"]) == (90.0, 91.0)
+    assert (plateau["seeds"] == 2).all()
+    # the last third of the rising curve: reports 21..30, mean coverage 50 + 10 * 2.55 (+ 0.5 across seeds)
+    assert plateau.loc["rising", "final_coverage"] == pytest.approx(76.0)
+    with pytest.raises(ValueError, match="fraction must be in"):
+        training_plateau(pd.DataFrame(rows), [], fraction=0.0)

@@ -269,6 +269,54 @@ def _plot_learning_curves(progress: pd.DataFrame, grid_columns: list[str], outpu
     return "learning_curves.png"
 
 
+PLATEAU_FRACTION = 1 / 3
+"""The share of a training run, at its end, over which :func:`training_plateau` fits its slope."""
+
+
+def training_plateau(progress: pd.DataFrame, grid_columns: list[str], fraction: float = PLATEAU_FRACTION) -> pd.DataFrame:
+    """Whether the training curves have flattened: per trial, the least-squares slope of the training coverage (finished
+    episodes of each rollout, %) over the last ``fraction`` of its reports, in points per million agent-steps, and the
+    mean coverage over that window; then per (grid point, variant) the across-seed mean and range of both.
+
+    :param progress: the trials' ``progress.csv`` rows (``agent_steps``, ``coverage``, ``trial_id``, ``variant``,
+        ``train_seed`` and the grid columns)
+    :return: one row per (grid point, variant): ``seeds``, ``final_coverage`` / ``_min`` / ``_max`` and
+        ``slope_per_M`` / ``_min`` / ``_max`` (empty when no trial logged coverage)
+    :raises ValueError: for ``fraction`` outside (0, 1]
+    """
+    if not 0.0 < fraction <= 1.0:
+        raise ValueError(f"fraction must be in (0, 1], got {fraction}")
+    rows = []
+    for run_id, runs in progress.dropna(subset=["coverage"]).groupby("trial_id", sort=False):
+        tail = runs.iloc[-max(2, int(round(len(runs) * fraction))):]
+        if len(tail) < 2:
+            continue
+        slope = np.polyfit(tail["agent_steps"].to_numpy(float) / 1e6, tail["coverage"].to_numpy(float), 1)[0]
+        rows.append({**{c: runs[c].iloc[0] for c in [*grid_columns, "variant", "train_seed"]}, "trial_id": run_id,
+                     "final_coverage": float(tail["coverage"].mean()), "slope_per_M": float(slope)})
+    if not rows:
+        return pd.DataFrame()
+    per_trial = pd.DataFrame(rows)
+    grouped = per_trial.groupby([*grid_columns, "variant"], sort=False)
+    summary = grouped.agg(seeds=("train_seed", "size"),
+                          final_coverage=("final_coverage", "mean"), final_coverage_min=("final_coverage", "min"),
+                          final_coverage_max=("final_coverage", "max"), slope_per_M=("slope_per_M", "mean"),
+                          slope_per_M_min=("slope_per_M", "min"), slope_per_M_max=("slope_per_M", "max"))
+    return summary.reset_index()
+
+
+def _plateau_markdown(plateau: pd.DataFrame, grid_columns: list[str], fraction: float = PLATEAU_FRACTION) -> str:
+    rows = [{**{c: row[c] for c in [*grid_columns, "variant"]}, "seeds": int(row["seeds"]),
+             f"training coverage, last {fraction:.0%} (%)":
+                 f"{row['final_coverage']:.1f} [{row['final_coverage_min']:.1f}, {row['final_coverage_max']:.1f}]",
+             "slope (points per 1M agent-steps)":
+                 f"{row['slope_per_M']:+.2f} [{row['slope_per_M_min']:+.2f}, {row['slope_per_M_max']:+.2f}]"}
+            for _, row in plateau.iterrows()]
+    from sb3_latentswarm.evaluation import to_markdown
+
+    return to_markdown(pd.DataFrame(rows))
+
+
 def _in_sweep_order(frame: pd.DataFrame, columns: list[str], spec: SweepSpec) -> pd.DataFrame:
     """``frame`` sorted by ``columns``, with variants, evaluation sets and conditions in the order the sweep names them."""
     ranks = {"variant": spec.variants, "eval_set": [s.name for s in spec.eval_sets], "condition": all_conditions()}
@@ -320,9 +368,11 @@ def write_report(output: str | Path, commit: str | None = None) -> pd.DataFrame:
     markdown = aggregate_markdown(aggregate, group_columns)
     write_text(output / "aggregate.md", markdown)
     figures = plot_intervals(aggregate, group_columns, output)
-    curves = _plot_learning_curves(_read_trials(output, ids, "progress.csv"), grid_columns, output)
+    progress = _read_trials(output, ids, "progress.csv")
+    curves = _plot_learning_curves(progress, grid_columns, output)
     if curves:
         figures.append(curves)
+    plateau = training_plateau(progress, grid_columns) if "coverage" in progress.columns else pd.DataFrame()
 
     seeds = scores.groupby("variant", sort=False)["train_seed"].unique()
     seeds_per_variant = {variant: sorted(int(seed) for seed in values) for variant, values in seeds.items()}
@@ -356,6 +406,12 @@ def write_report(output: str | Path, commit: str | None = None) -> pd.DataFrame:
         "trial nodes: " + "; ".join(f"{node}: {', '.join(sorted(ran))}" for node, ran in nodes.items()),
         f"train wall time per trial: {np.median([r['train_seconds'] for r in records]):.0f} s (median)",
     ]
-    body = ["## Across-seed intervals", "", markdown, "## Figures", "", *(f"![{name}]({name})" for name in figures), ""]
+    body = ["## Across-seed intervals", "", markdown]
+    if not plateau.empty:
+        body += ["## Have the training curves flattened?", "",
+                 f"Per trial, the least-squares slope of the training coverage over the last {PLATEAU_FRACTION:.0%} of "
+                 "its updates (finished episodes of each rollout, the training actions); across-seed mean [min, max].",
+                 "", _plateau_markdown(plateau, grid_columns), ""]
+    body += ["## Figures", "", *(f"![{name}]({name})" for name in figures), ""]
     write_run_record(output, f"Sweep: preset `{spec.preset}`", commit or records[0]["commit"], facts, body)
     return aggregate

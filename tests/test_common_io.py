@@ -51,6 +51,21 @@ def test_atomic_write_keeps_the_old_file_when_writing_fails(tmp_path):
     assert target.read_text().startswith("{")
 
 
+def test_atomic_files_get_the_umask_mode_or_keep_the_replaced_files_mode(tmp_path):
+    old_umask = os.umask(0o022)
+    try:
+        atomic.write_text(tmp_path / "new.txt", "x")
+        assert (tmp_path / "new.txt").stat().st_mode & 0o777 == 0o644  # as open(path, "w") would, not mkstemp's 0o600
+        os.umask(0o077)
+        atomic.write_bytes(tmp_path / "private.bin", b"x")
+        assert (tmp_path / "private.bin").stat().st_mode & 0o777 == 0o600
+        os.chmod(tmp_path / "new.txt", 0o640)
+        atomic.write_text(tmp_path / "new.txt", "y")  # a replaced file keeps its mode
+        assert (tmp_path / "new.txt").stat().st_mode & 0o777 == 0o640
+    finally:
+        os.umask(old_umask)
+
+
 def test_probe_writable_refuses_a_file_and_an_unwritable_folder(tmp_path):
     atomic.probe_writable(tmp_path / "new" / "deep", room_bytes=1024)
     assert (tmp_path / "new" / "deep").is_dir() and not os.listdir(tmp_path / "new" / "deep")

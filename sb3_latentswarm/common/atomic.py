@@ -18,16 +18,31 @@ from typing import Any
 __all__ = ["atomic_path", "write_text", "write_bytes", "write_json", "probe_writable"]
 
 
+def _file_mode(final: Path) -> int:
+    """The permission bits for a result file at ``final``: those of the file it replaces, else ``0o666 & ~umask``."""
+    try:
+        return final.stat().st_mode & 0o777
+    except OSError:
+        umask = os.umask(0o022)  # reading the umask means setting it; put it back at once
+        os.umask(umask)
+        return 0o666 & ~umask
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it is moved onto ``path`` with ``os.replace``.
 
-    The temporary name keeps ``path``'s suffix (libraries that pick a format from the suffix still work). On any
-    exception the temporary file is removed and ``path`` is left as it was.
+    The temporary name keeps ``path``'s suffix (libraries that pick a format from the suffix still work). The file
+    gets the permissions a plain ``open(path, "w")`` would give (``0o666`` less the process umask), or those of the
+    file it replaces, not ``mkstemp``'s owner-only ``0o600``. On any exception the temporary file is removed and
+    ``path`` is left as it was.
     """
     final = Path(path)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{final.stem}.", suffix=f".tmp{final.suffix}", dir=final.parent)
-    os.close(fd)
+    try:
+        os.fchmod(fd, _file_mode(final))
+    finally:
+        os.close(fd)
     tmp = Path(tmp_name)
     try:
         yield tmp

@@ -1,9 +1,9 @@
 """The README's first command (``make demo``): two minutes that show what the package does and what our results say.
 
-1. Trains ``LatentSwarmPPO`` on the ``demo`` preset (a 12 x 12 map, two UAVs, T = 40) with the training options the
-   presets use (MAPPO's ValueNorm, Huber value loss, per-group clipping, bounded std), then evaluates it with its links
-   (``proposed``) and with every link cut (``no_comm``), next to a random swarm. This task is too small to need
-   messages; the table says how much cutting them costs there.
+1. Trains ``LatentSwarmPPO`` on the ``demo`` preset (a tiny ``coordination``: 12 x 12 cells of 2.5 m, three UAVs
+   launched from one corner, T = 30) with the training options the presets use (MAPPO's ValueNorm, Huber value loss,
+   per-group clipping, the squashed actor), then evaluates it with its links (``proposed``) and with every link cut
+   (``no_comm``), next to a random swarm; the table says how much cutting the links costs on this tiny task.
 2. Evaluates the committed ``coordination`` model (``docs/results/coordination/trials/proposed-seed0``: a corner
    launch and a tight horizon, where coordination pays) under the paper's five test-time conditions (Table I), next
    to the same learner trained with every link down (``no_comm-seed0``).
@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import resource
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +31,7 @@ import pandas as pd
 
 from sb3_latentswarm import LatentSwarmPPO
 from sb3_latentswarm.baselines import RandomPlanner
+from sb3_latentswarm.callbacks import RolloutProgressBarCallback
 from sb3_latentswarm.evaluation import CONDITIONS, evaluate, evaluate_conditions, summarize, to_markdown
 from sb3_latentswarm.experiments.trial import EVAL_SEED_BASE
 from sb3_latentswarm.presets import get_preset
@@ -123,7 +125,8 @@ def main() -> None:
     )
     env = preset.make_env(args.seed, config=config)
     model = preset.make_model(env, seed=args.seed)
-    model.learn(total_timesteps=total)
+    bar = [RolloutProgressBarCallback()] if sys.stderr.isatty() else []  # on a terminal, as `sb3-latentswarm train`
+    model.learn(total_timesteps=total, callback=bar)
     env.close()
     demo = evaluate_conditions(model, ("proposed", "no_comm"), n_episodes=args.episodes, config=config, **held_out)
     random_rows = evaluate(RandomPlanner(config, seed=0), "proposed", n_episodes=args.episodes, config=config, **held_out)

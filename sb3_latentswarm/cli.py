@@ -507,7 +507,9 @@ def _check_evaluation_folder(folder: Path, record: dict[str, Any]) -> dict[str, 
 
 
 def _evaluation_folder(args: argparse.Namespace, record: dict[str, Any]) -> Path:
-    """``--output``, or ``evaluation/`` next to the model; never a folder with tables of another evaluation.
+    """``--output``, or ``evaluation/`` next to the model (``runs/evaluate/<model folder>/evaluation/`` for a model
+    under ``docs/results/``, so that evaluating a committed model leaves the repository clean); never a folder with
+    tables of another evaluation.
 
     Without ``--output``, an ``evaluation/`` that holds other tables is kept and this evaluation goes to
     ``evaluation-HASH/`` (HASH: of what it is made from), and says so; an ``--output`` that holds other tables is an
@@ -517,7 +519,12 @@ def _evaluation_folder(args: argparse.Namespace, record: dict[str, Any]) -> Path
         folder = Path(args.output)
         _check_evaluation_folder(folder, record)
         return folder
-    folder = Path(args.model).parent / "evaluation"
+    model_folder = Path(args.model).resolve().parent
+    if "docs" in model_folder.parts and "results" in model_folder.parts:  # a committed result: keep the tree clean
+        folder = Path("runs") / "evaluate" / model_folder.name / "evaluation"
+        print(f"{args.model} is a committed result; writing this evaluation to {folder} (choose with --output)")
+    else:
+        folder = model_folder / "evaluation"
     if _evaluation_conflict(folder, record):
         identity = {key: record[key] for key in (*RECORD_IDENTITY, "requested")}
         digest = hashlib.sha1(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:8]
@@ -653,7 +660,8 @@ def build_parser() -> argparse.ArgumentParser:
             type=int,
             default=0,
             help="random seed (default 0): for train, the model's seed and the env copies' (copy k gets SEED + k); for "
-            "evaluate and render, the episode seed the evaluation episodes start from",
+            "render, the episode's env seed; for evaluate, the random baseline's seed (the episodes' seeds are "
+            "--eval-seed's)",
         )
         p.add_argument(
             "--device",

@@ -314,6 +314,16 @@ def test_cli_evaluations_record_their_config_and_never_mix(tmp_path, capsys):
     assert "holds the tables of another evaluation" in capsys.readouterr().err
 
 
+def test_cli_evaluating_a_committed_model_writes_under_runs_not_into_docs(tmp_path, capsys, monkeypatch):
+    committed = tmp_path / "docs" / "results" / "some_run"
+    assert main(["train", "--preset", "smoke", "--output", str(committed), "--no-progress"]) == 0
+    monkeypatch.chdir(tmp_path)
+    assert main(["evaluate", "--model", str(committed / "model.zip"), "--no-baselines", "--episodes", "1"]) == 0
+    assert "is a committed result; writing this evaluation to runs/evaluate/some_run/evaluation" in capsys.readouterr().out
+    assert (tmp_path / "runs" / "evaluate" / "some_run" / "evaluation" / "conditions.csv").exists()
+    assert not (committed / "evaluation").exists()
+
+
 @pytest.mark.parametrize("variables, expected", [({}, 1), ({"OMP_NUM_THREADS": "2"}, 2)])
 def test_importing_the_package_applies_the_thread_default_unless_the_environment_chose(variables, expected):
     import os

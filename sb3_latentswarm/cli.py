@@ -124,10 +124,14 @@ RESUME_SETTINGS = ("preset", "set", "seed", "total_timesteps", "backend")
 from the checkpoint)."""
 
 
-def _train_settings(args: argparse.Namespace, stored: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The run's settings: the options given, else (with ``--resume``) the checkpoint's, else the defaults.
+def _train_settings(
+    args: argparse.Namespace, stored: dict[str, Any] | None = None, source: str = "checkpoint"
+) -> dict[str, Any]:
+    """The run's settings: the options given, else (with ``--resume``) the stored ones, else the defaults.
 
-    :raise ValueError: with ``--resume``, for a given option that differs from the checkpoint's, naming both values
+    :param stored: the settings of the run being resumed (a checkpoint's, or ``train --seeds``'s record)
+    :param source: what ``stored`` comes from, for the message
+    :raise ValueError: with ``--resume``, for a given option that differs from the stored one, naming both values
     """
     stored = stored or {}
     given = {
@@ -144,14 +148,14 @@ def _train_settings(args: argparse.Namespace, stored: dict[str, Any] | None = No
             return value == stored.get(name)
 
         differ = [
-            f"{name} (checkpoint: {stored.get(name)!r}, command: {value!r})"
+            f"{name} ({source}: {stored.get(name)!r}, command: {value!r})"
             for name, value in given.items()
             if value is not None and not same(name, value)
         ]
         if differ:
             raise ValueError(
                 f"--resume: the run in {args.output} was started with other settings: {'; '.join(differ)}. Resume with "
-                f"the run's settings (omit the options to take them from the checkpoint) or start a new run in another "
+                f"the run's settings (omit the options to take them from the {source}) or start a new run in another "
                 f"--output"
             )
         return {name: stored.get(name) for name in RESUME_SETTINGS}
@@ -163,6 +167,25 @@ def _resume_command(output: Path) -> str:
     import shlex
 
     return f"sb3-latentswarm train --resume --output {shlex.quote(str(output))}"
+
+
+def _checked_training_preset(args: argparse.Namespace) -> Preset:
+    """The preset of ``args`` (``--preset``, ``--set``) with its algorithm settings validated, and with ``--evaluate``
+    its evaluation episodes held out from the training env copies of ``--seed``: before any env is built or file
+    written."""
+    from sb3_latentswarm.latent_ppo.latent_ppo import validate_algorithm_kwargs
+
+    preset = _preset_from_args(args, training=True)
+    check_int("n_envs", preset.n_envs, low=1)  # before any arithmetic with it
+    check_int("n_steps", preset.algo_kwargs["n_steps"], low=1)
+    validate_algorithm_kwargs(**preset.algo_kwargs)
+    if args.evaluate:
+        check_int("eval_episodes", preset.eval_episodes, low=1)
+        # the evaluation episodes must not replay a training env copy's first episode
+        from sb3_latentswarm.evaluation import check_held_out
+
+        check_held_out(_eval_seed(args), preset.eval_episodes, args.seed, preset.n_envs)
+    return preset
 
 
 def command_train(args: argparse.Namespace) -> int:
@@ -183,12 +206,14 @@ def command_train(args: argparse.Namespace) -> int:
     )
     from sb3_latentswarm.common.atomic import probe_writable, write_json
     from sb3_latentswarm.latent_ppo import LatentSwarmPPO
-    from sb3_latentswarm.latent_ppo.latent_ppo import validate_algorithm_kwargs
+    from sb3_latentswarm.train_seeds import SEEDS_RECORD
 
     output = Path(args.output or f"runs/{args.preset or 'demo'}")
     args.output = str(output)
     if output.exists() and not output.is_dir():
         raise ValueError(f"--output {output} is an existing file, not a folder")
+    if (args.seeds or 1) > 1 or (output / SEEDS_RECORD).exists():
+        return _command_train_seeds(args, output)
     checkpoint_dir = output / CHECKPOINTS
     latest = latest_checkpoint(checkpoint_dir)
     state: dict[str, Any] = {}
@@ -208,11 +233,9 @@ def command_train(args: argparse.Namespace) -> int:
         )
     settings = _train_settings(args, state.get("settings"))
     args.preset, args.set, args.seed, args.backend = settings["preset"], settings["set"], settings["seed"], settings["backend"]
-    preset = _preset_from_args(args, training=True)
+    preset = _checked_training_preset(args)
     total = settings["total_timesteps"] or preset.total_timesteps
     settings["total_timesteps"] = total
-    check_int("n_envs", preset.n_envs, low=1)  # before any arithmetic with it
-    check_int("n_steps", preset.algo_kwargs["n_steps"], low=1)
     per_update = preset.agent_steps_per_update
     stored = state.get("settings") or {}
     if args.save_freq is None:  # the run's own frequency on --resume (not compared: it changes no result)
@@ -221,13 +244,6 @@ def command_train(args: argparse.Namespace) -> int:
         args.keep_checkpoints = stored.get("keep_checkpoints", 3)
     save_freq = args.save_freq
 
-    validate_algorithm_kwargs(**preset.algo_kwargs)  # before any env is built or file written
-    if args.evaluate:
-        check_int("eval_episodes", preset.eval_episodes, low=1)
-        # the evaluation episodes must not replay a training env copy's first episode
-        from sb3_latentswarm.evaluation import check_held_out
-
-        check_held_out(_eval_seed(args), preset.eval_episodes, args.seed, preset.n_envs)
     # every setting is checked here, by building the env and the model, before any folder is created
     env = preset.make_env(args.seed, backend=args.backend)
     tensorboard = args.tensorboard if args.tensorboard is not None else (state.get("settings") or {}).get("tensorboard")
@@ -314,6 +330,214 @@ def command_train(args: argparse.Namespace) -> int:
         return stop.exit_code
     if args.evaluate:
         _evaluate_and_print(model, preset, args, output, p_fail_sweep=False, baselines=True, model_path=model_path)
+    return 0
+
+
+SEED_OPTIONS = ("evaluate", "eval_seed", "stochastic", "tensorboard", "save_freq", "keep_checkpoints")
+"""``train --seeds`` options stored in its record and passed to every seed's process; ``--resume`` takes the stored
+value of each one not given again (the settings of :data:`RESUME_SETTINGS` must match, as for one seed)."""
+
+
+def _seed_argv(args: argparse.Namespace, settings: dict[str, Any], options: dict[str, Any], seed: int, resume: bool):
+    """The ``sb3-latentswarm`` arguments that train (or, with ``resume``, continue) one seed of ``train --seeds``."""
+    from sb3_latentswarm.train_seeds import seed_folder
+
+    folder = seed_folder(args.output, seed)
+    argv = ["train", "--output", str(folder), "--no-progress", "--device", args.device, "--verbose", str(args.verbose)]
+    if resume:  # the settings, TensorBoard run, save_freq and keep_checkpoints are the seed checkpoint's
+        argv.insert(1, "--resume")
+        given = {"save_freq": args.save_freq, "keep_checkpoints": args.keep_checkpoints}
+    else:
+        argv += ["--preset", settings["preset"], "--seed", str(seed), "--total-timesteps", str(settings["total_timesteps"])]
+        argv += ["--backend", settings["backend"]]
+        for pair in settings["set"] or []:
+            argv += ["--set", pair]
+        given = {name: options[name] for name in ("save_freq", "keep_checkpoints")}
+        if options["tensorboard"] is not None:
+            argv += ["--tensorboard", str(Path(options["tensorboard"]) / f"seed{seed}")]
+    for name, value in given.items():
+        if value is not None:
+            argv += [f"--{name.replace('_', '-')}", str(value)]
+    if args.threads:
+        argv += ["--threads", str(args.threads)]
+    if options["evaluate"]:
+        argv.append("--evaluate")
+    if options["eval_seed"] is not None:
+        argv += ["--eval-seed", str(options["eval_seed"])]
+    if options["stochastic"]:
+        argv.append("--stochastic")
+    return tuple(argv)
+
+
+def _last_line(path: Path, limit: int = 300) -> str:
+    """The last non-empty line of a text file (at most ``limit`` characters), ``""`` where there is none."""
+    try:
+        lines = [line.strip() for line in path.read_text(errors="replace").splitlines() if line.strip()]
+    except OSError:
+        return ""
+    return lines[-1][:limit] if lines else ""
+
+
+def _command_train_seeds(args: argparse.Namespace, output: Path) -> int:
+    """``train --seeds K [--jobs J]``: seeds ``S .. S+K-1`` in ``OUTPUT/seed{S+i}/``, each by the single-seed
+    ``train`` in a single-thread process of its own (:mod:`sb3_latentswarm.train_seeds`), at most J at a time.
+
+    Every argument, the preset's settings (by building the env and model of seed S) and the folders are checked
+    before any process starts or any file is written. ``--resume`` (or the same command with ``--resume``) skips the
+    finished seeds, continues the unfinished ones from their checkpoints and starts the others.
+
+    :return: 0; 1 when a seed failed; 128 + the signal's number when stopped by SIGINT / SIGTERM / SIGHUP
+    """
+    from sb3_latentswarm.checkpoints import estimate_checkpoint_bytes, latest_checkpoint
+    from sb3_latentswarm.common.atomic import probe_writable, write_json
+    from sb3_latentswarm.threads import available_cores
+    from sb3_latentswarm.train_seeds import SEEDS_RECORD, SeedRun, run_seed_processes, seed_folder, seed_state
+
+    record_path = output / SEEDS_RECORD
+    record: dict[str, Any] | None = None
+    if record_path.exists():
+        try:
+            record = json.loads(record_path.read_text())
+            if not isinstance(record, dict) or not isinstance(record.get("settings"), dict):
+                raise ValueError("not a seeds record")
+        except (OSError, ValueError) as error:  # JSONDecodeError is a ValueError
+            raise ValueError(f"--output {output}: {record_path} is not a readable record of train --seeds ({error})") from None
+        if not args.resume:
+            raise ValueError(
+                f"--output {output} holds the seeds of an earlier run ({record_path}); continue them with --resume, or "
+                f"pass another --output"
+            )
+    elif args.resume:
+        raise ValueError(f"--resume --seeds: no run of train --seeds in {output} (no {SEEDS_RECORD}); train without --resume")
+    elif latest_checkpoint(output / CHECKPOINTS) is not None or (output / "model.zip").exists():
+        raise ValueError(
+            f"--output {output} holds a single-seed run (model.zip or checkpoints/); train --seeds needs a folder of its "
+            f"own: pass another --output"
+        )
+    stored = (record or {}).get("options") or {}
+    settings = _train_settings(args, (record or {}).get("settings"), source=SEEDS_RECORD)
+    args.preset, args.set, args.seed, args.backend = settings["preset"], settings["set"], settings["seed"], settings["backend"]
+    n_seeds = args.seeds or int((record or {}).get("seeds", 1))
+    given = {name: getattr(args, name) for name in SEED_OPTIONS}
+    options = {name: stored.get(name, value) if value is None or value is False else value for name, value in given.items()}
+    args.evaluate, args.eval_seed = options["evaluate"], options["eval_seed"]
+    preset = _checked_training_preset(args)
+    settings["total_timesteps"] = settings["total_timesteps"] or preset.total_timesteps
+    seeds = range(settings["seed"], settings["seed"] + n_seeds)
+    if options["evaluate"]:
+        from sb3_latentswarm.evaluation import check_held_out
+
+        for seed in seeds:
+            check_held_out(_eval_seed(args), preset.eval_episodes, seed, preset.n_envs)
+
+    states = {seed: seed_state(seed_folder(output, seed), options["evaluate"]) for seed in seeds}
+    if record is None:  # a new run: no seed folder may hold an earlier run's files
+        for seed in seeds:
+            folder = seed_folder(output, seed)
+            if states[seed] != "new" or any((folder / f"{name}.csv").exists() for name in EVALUATION_TABLES):
+                raise ValueError(f"--output {output}: {folder} holds an earlier run; pass another --output")
+    to_run = [seed for seed in seeds if states[seed] != "finished"]
+    cores = available_cores()
+    threads = args.threads or 1
+    jobs = min(args.jobs or cores, max(len(to_run), 1))
+    if jobs * threads > cores:
+        print(
+            f"sb3-latentswarm train: warning: --jobs {jobs} runs {jobs * threads} torch thread(s) at once, but this "
+            f"process may run on {cores} core(s): processes that wait for a core are slower in all, and two threads on "
+            f"a loaded 2-core machine ran a coordination update 50x slower than one (docs/benchmarks.md)",
+            file=sys.stderr,
+        )
+    room = 0
+    if to_run:  # build seed S's env and model once: every setting is checked, and a checkpoint's size known
+        env = preset.make_env(settings["seed"], backend=args.backend)
+        try:
+            model = preset.make_model(env, seed=settings["seed"], device=args.device, verbose=0)
+            room = 2 * estimate_checkpoint_bytes(model) * len(to_run)
+            del model
+        finally:
+            env.close()
+    probe_writable(output, room_bytes=room)
+    if options["tensorboard"] is not None:
+        probe_writable(options["tensorboard"])
+
+    record = {
+        "settings": settings,
+        "seeds": max(n_seeds, int((record or {}).get("seeds", 0))),
+        "options": {name: stored.get(name, options[name]) if record else options[name] for name in SEED_OPTIONS},
+        "results": (record or {}).get("results", {}),
+        "version": __version__,
+    }
+    write_json(record_path, record)
+    overrides = f" with {' '.join(settings['set'])}" if settings["set"] else ""
+    each = "one torch thread each" if threads == 1 else f"{threads} torch threads each"
+    skipped = [seed for seed in seeds if states[seed] == "finished"]
+    print(
+        f"Training {n_seeds} seeds ({seeds.start}..{seeds.stop - 1}) of preset '{preset.name}'{overrides}, "
+        f"{settings['total_timesteps']:,} agent-steps each, {jobs} at a time ({each}), in "
+        f"{output}/seed*/" + (f"; {len(skipped)} already trained" if skipped else "")
+    )
+    for seed in skipped:
+        print(f"seed {seed}: already trained, skipped ({seed_folder(output, seed) / 'model.zip'})")
+    runs = [
+        SeedRun(seed, seed_folder(output, seed), _seed_argv(args, settings, options, seed, states[seed] == "unfinished"),
+                resume=states[seed] == "unfinished")
+        for seed in to_run
+    ]
+
+    def started(run: SeedRun) -> None:
+        how = "continuing from its newest checkpoint" if run.resume else "started"
+        print(f"seed {run.seed}: {how} (log {run.log})", flush=True)
+
+    def finished(result) -> None:
+        record["results"][str(result.seed)] = result.as_record()
+        write_json(record_path, record)
+        if result.status == "not started":
+            return
+        cpu = f", {result.cpu_seconds:.0f} s CPU" if result.cpu_seconds is not None else ""
+        took = f"{result.wall_seconds:.0f} s{cpu}"
+        if result.status == "trained":
+            coverage = f", last rollout coverage {result.coverage:.3f}" if result.coverage is not None else ""
+            print(f"seed {result.seed}: trained in {took}{coverage} ({result.folder / 'model.zip'})", flush=True)
+        else:
+            print(f"seed {result.seed}: {result.status} (exit code {result.exit_code}) after {took}; log {result.log}",
+                  flush=True)
+
+    results, signum = run_seed_processes(runs, jobs, threads, on_start=started, on_finish=finished)
+    trained = [result for result in results if result.status == "trained"]
+    failed = [result for result in results if result.status == "failed"]
+    coverages = [result.coverage for result in trained if result.coverage is not None]
+    summary = f"\n{len(trained)} seed(s) trained, {len(skipped)} skipped (already trained), {len(failed)} failed"
+    if signum is not None:
+        summary += f", {len(results) - len(trained) - len(failed)} stopped or not started"
+    if coverages:
+        summary += (
+            f"; last rollout coverage of the trained ones: mean {sum(coverages) / len(coverages):.3f} "
+            f"(min {min(coverages):.3f}, max {max(coverages):.3f})"
+        )
+    print(summary)
+    if signum is not None:
+        import signal
+
+        stopped = [str(result.seed) for result in results if result.status == "stopped"]
+        waiting = [str(result.seed) for result in results if result.status == "not started"]
+        print(
+            f"\nStopped by {signal.Signals(signum).name}: seed(s) {', '.join(stopped) or 'none'} wrote a checkpoint"
+            + (f", seed(s) {', '.join(waiting)} not started" if waiting else "")
+            + f". Resume every unfinished seed with:\n  {_resume_command(output)}",
+            file=sys.stderr,
+        )
+        return 128 + int(signum)
+    if failed:
+        lines = "\n".join(
+            f"  seed {result.seed}: exit code {result.exit_code}, log {result.log}: {_last_line(result.log)}"
+            for result in failed
+        )
+        print(
+            f"sb3-latentswarm train: {len(failed)} seed(s) failed:\n{lines}\nFix the cause and rerun the unfinished "
+            f"seeds with:\n  {_resume_command(output)}",
+            file=sys.stderr,
+        )
+        return 1
     return 0
 
 
@@ -739,6 +963,21 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         choices=("batched", "supersuit"),
         help="vec env backend: 'batched' (default, fast) or 'supersuit' (PettingZoo env via SuperSuit); same episodes",
+    )
+    train.add_argument(
+        "--seeds",
+        type=int_at_least(1),
+        default=None,
+        metavar="K",
+        help="train seeds SEED .. SEED+K-1, each by this command in a single-thread process of its own, into "
+        "OUTPUT/seedN/ (default 1: one seed, into OUTPUT itself); rerun with --resume to continue the unfinished ones",
+    )
+    train.add_argument(
+        "--jobs",
+        type=int_at_least(1),
+        default=None,
+        metavar="J",
+        help="with --seeds: processes at a time (default: the cores this process may run on, at most K; more warns)",
     )
     train.set_defaults(func=command_train, preset=None, seed=None)
 

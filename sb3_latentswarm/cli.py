@@ -430,7 +430,7 @@ def _command_train_seeds(args: argparse.Namespace, output: Path) -> int:
         for seed in seeds:
             check_held_out(_eval_seed(args), preset.eval_episodes, seed, preset.n_envs)
 
-    states = {seed: seed_state(seed_folder(output, seed), options["evaluate"]) for seed in seeds}
+    states = {seed: seed_state(seed_folder(output, seed), bool(options["evaluate"])) for seed in seeds}
     if record is None:  # a new run: no seed folder may hold an earlier run's files
         for seed in seeds:
             folder = seed_folder(output, seed)

@@ -41,7 +41,11 @@ what ``--resume`` compares and continues."""
 TRAIN_LOG = "train.log"
 """Each seed folder's log: the standard output and error of its ``train`` process (appended to on resume)."""
 
-FORWARDED_SIGNALS = {signal.SIGINT: signal.SIGINT, signal.SIGTERM: signal.SIGTERM, signal.SIGHUP: signal.SIGTERM}
+FORWARDED_SIGNALS: dict[int, int] = {
+    signal.SIGINT: signal.SIGINT,
+    signal.SIGTERM: signal.SIGTERM,
+    signal.SIGHUP: signal.SIGTERM,
+}
 """Signal the parent receives -> signal it sends to every running seed (``train`` checkpoints on SIGINT / SIGTERM;
 a closed terminal's SIGHUP becomes a SIGTERM)."""
 
@@ -282,4 +286,5 @@ def run_seed_processes(
             for job in running:
                 job.process.wait()
     order = {run.seed: k for k, run in enumerate(runs)}
-    return sorted(results.values(), key=lambda result: order[result.seed]), (signals.received or [None])[0]
+    first_signal = signals.received[0] if signals.received else None
+    return sorted(results.values(), key=lambda result: order[result.seed]), first_signal

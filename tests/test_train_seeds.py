@@ -218,7 +218,7 @@ def test_sigint_stops_every_seed_at_a_checkpoint_and_resume_finishes_them(tmp_pa
     output = tmp_path / "run"
     argv = ["train", "--preset", "smoke", "--seeds", "3", "--jobs", "2", "--total-timesteps", "4800", "--save-freq", "120"]
     process = subprocess.Popen(
-        [sys.executable, "-m", "sb3_latentswarm.cli", *argv, "--output", str(output)],
+        [sys.executable, "-m", "sb3_latentswarm.cli", *argv, "--output", str(output), "--tensorboard", str(tmp_path / "tb")],
         env={**child_environment(1), "PYTHONPATH": str(ROOT)},
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -243,3 +243,5 @@ def test_sigint_stops_every_seed_at_a_checkpoint_and_resume_finishes_them(tmp_pa
         rows = list(csv.DictReader((output / f"seed{seed}" / "progress.csv").open()))
         assert [int(row["time/total_timesteps"]) for row in rows] == [120 * k for k in range(1, 41)]
         assert (output / f"seed{seed}" / "model.zip").is_file()
+        # each seed logs into a TensorBoard folder of its own, one run each (continued in place on resume)
+        assert [p.name for p in (tmp_path / "tb" / f"seed{seed}").iterdir()] == ["latentswarm_smoke_1"]

@@ -1,6 +1,7 @@
 """The ``sb3-latentswarm`` command: ``train``, ``evaluate``, ``render`` and ``sweep``.
 
     sb3-latentswarm train --preset demo --evaluate          # the README's main job
+    sb3-latentswarm train --preset coordination --seeds 3   # seeds 0, 1, 2: one single-thread process each
     sb3-latentswarm evaluate --model runs/demo/model.zip --p-fail-sweep   # on the env config saved with the model
     sb3-latentswarm render --model runs/demo/model.zip --output episode.gif
     sb3-latentswarm sweep --preset fast --seeds 5           # seeds x variants on Ray Tune, across-seed intervals
@@ -192,7 +193,8 @@ def command_train(args: argparse.Namespace) -> int:
     """``train``: validate every setting, probe the output folder, train with checkpoints, save ``model.zip``.
 
     ``--resume`` continues the newest checkpoint in ``--output``; SIGINT / SIGTERM write a checkpoint and exit with
-    128 + the signal number (see ``docs/long_runs.md``).
+    128 + the signal number (see ``docs/long_runs.md``). ``--seeds K`` > 1 (or an ``--output`` holding a
+    ``seeds.json``) runs this command once per seed, in processes of their own (:func:`_command_train_seeds`).
     """
     from sb3_latentswarm.callbacks import RolloutProgressBarCallback, whole_rollouts
     from sb3_latentswarm.checkpoints import (

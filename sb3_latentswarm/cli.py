@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_latentswarm.common.checks import check_int
+from sb3_latentswarm.common.seeding import training_env_seed
 from sb3_latentswarm.presets import PRESETS, Preset, get_preset, override_targets, unknown_settings_message
 from sb3_latentswarm.version import __version__
 
@@ -120,9 +121,10 @@ def _print_table(title: str, markdown: str) -> None:
 CHECKPOINTS = "checkpoints"
 """Subfolder of ``train --output`` holding the run's checkpoints (:mod:`sb3_latentswarm.checkpoints`)."""
 
-RESUME_SETTINGS = ("preset", "set", "seed", "total_timesteps", "backend")
+RESUME_SETTINGS = ("preset", "set", "seed", "env_seed", "total_timesteps", "backend")
 """The ``train`` options a checkpoint stores and ``--resume`` compares (given ones must match; missing ones are taken
-from the checkpoint)."""
+from the checkpoint; a checkpoint without ``env_seed``, from before ``--env-seed``, seeded its env copies from
+``seed``)."""
 
 
 def _train_settings(
@@ -139,10 +141,14 @@ def _train_settings(
         "preset": args.preset,
         "set": sorted(args.set) if args.set else None,
         "seed": args.seed,
+        "env_seed": args.env_seed,
         "total_timesteps": args.total_timesteps,
         "backend": args.backend,
     }
     if stored:
+        if stored.get("env_seed") is None:  # a run from before --env-seed: its env copies were seeded from --seed
+            stored = {**stored, "env_seed": stored.get("seed")}
+
         def same(name: str, value: Any) -> bool:
             if name == "set":  # the same settings in any order
                 return parse_overrides(value) == parse_overrides(stored.get(name) or [])
@@ -161,19 +167,43 @@ def _train_settings(
             )
         return {name: stored.get(name) for name in RESUME_SETTINGS}
     defaults = {"preset": "demo", "set": [], "seed": 0, "total_timesteps": None, "backend": "batched"}
-    return {name: defaults[name] if value is None else value for name, value in given.items()}
+    settings = {name: defaults.get(name) if value is None else value for name, value in given.items()}
+    if settings["env_seed"] is None:  # the default: copy c gets --seed + c, as before --env-seed
+        settings["env_seed"] = settings["seed"]
+    return settings
+
+
+def _program_name() -> str:
+    """The name the user ran this command by: ``basename(sys.argv[0])`` when that is one of the package's console
+    scripts (``sb3-latentswarm``), else ``sb3-latentswarm`` (``python -m sb3_latentswarm.cli``, a test runner)."""
+    import os
+    from importlib.metadata import entry_points
+
+    name = os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else ""
+    for suffix in ("-script.py", ".exe"):  # the launchers pip writes on Windows
+        name = name.removesuffix(suffix)
+    try:
+        scripts = {ep.name for ep in entry_points(group="console_scripts") if ep.value.startswith(f"{__name__}:")}
+    except Exception:  # broken package metadata must not stop a run from printing how to resume it
+        scripts = set()
+    return name if name in scripts else "sb3-latentswarm"
 
 
 def _resume_command(output: Path) -> str:
+    """``sb3-latentswarm train --resume --output OUTPUT``, by the name the user ran (:func:`_program_name`)."""
     import shlex
 
-    return f"sb3-latentswarm train --resume --output {shlex.quote(str(output))}"
+    return f"{_program_name()} train --resume --output {shlex.quote(str(output))}"
 
 
-def _checked_training_preset(args: argparse.Namespace) -> Preset:
+def _checked_training_preset(args: argparse.Namespace, n_seeds: int | None = None) -> Preset:
     """The preset of ``args`` (``--preset``, ``--set``) with its algorithm settings validated, and with ``--evaluate``
-    its evaluation episodes held out from the training env copies of ``--seed``: before any env is built or file
-    written."""
+    its evaluation episodes held out from the training env copies: before any env is built or file written.
+
+    :param n_seeds: ``None`` for one run (copies ``ENV_SEED .. ENV_SEED + n_envs - 1``, ``ENV_SEED`` defaulting to
+        ``--seed``); else the number of seeds of ``train --seeds``, whose seed ``S + i`` trains the copies of
+        :func:`~sb3_latentswarm.common.seeding.training_env_seed` ``(S + i, n_envs)``
+    """
     from sb3_latentswarm.latent_ppo.latent_ppo import validate_algorithm_kwargs
 
     preset = _preset_from_args(args, training=True)
@@ -185,7 +215,12 @@ def _checked_training_preset(args: argparse.Namespace) -> Preset:
         # the evaluation episodes must not replay a training env copy's first episode
         from sb3_latentswarm.evaluation import check_held_out
 
-        check_held_out(_eval_seed(args), preset.eval_episodes, args.seed, preset.n_envs)
+        if n_seeds is None:
+            bases = [args.seed if args.env_seed is None else args.env_seed]
+        else:
+            bases = [training_env_seed(args.seed + i, preset.n_envs) for i in range(n_seeds)]
+        for base in bases:
+            check_held_out(_eval_seed(args), preset.eval_episodes, base, preset.n_envs)
     return preset
 
 
@@ -235,6 +270,7 @@ def command_train(args: argparse.Namespace) -> int:
         )
     settings = _train_settings(args, state.get("settings"))
     args.preset, args.set, args.seed, args.backend = settings["preset"], settings["set"], settings["seed"], settings["backend"]
+    args.env_seed = settings["env_seed"]
     preset = _checked_training_preset(args)
     total = settings["total_timesteps"] or preset.total_timesteps
     settings["total_timesteps"] = total
@@ -247,7 +283,7 @@ def command_train(args: argparse.Namespace) -> int:
     save_freq = args.save_freq
 
     # every setting is checked here, by building the env and the model, before any folder is created
-    env = preset.make_env(args.seed, backend=args.backend)
+    env = preset.make_env(args.env_seed, backend=args.backend)
     tensorboard = args.tensorboard if args.tensorboard is not None else (state.get("settings") or {}).get("tensorboard")
     if state:
         model = LatentSwarmPPO.load_checkpoint(latest, env=env, device=args.device, tensorboard_log=tensorboard)
@@ -279,15 +315,18 @@ def command_train(args: argparse.Namespace) -> int:
     # learn() collects whole rollouts: the run ends at the budget rounded up to them (the progress bar's total)
     end = model.num_timesteps + (whole_rollouts(remaining, per_rollout) if remaining > 0 else 0)
     rounded = f" ({total:,} rounded up to whole rollouts of {per_rollout:,})" if end != total else ""
+    copies = f"env copies {args.env_seed}..{args.env_seed + preset.n_envs - 1}"
     if state:
-        print(f"Resuming {latest} at {model.num_timesteps:,} of {end:,} agent-steps{rounded}")
+        print(f"Resuming {latest} at {model.num_timesteps:,} of {end:,} agent-steps{rounded}, seed {args.seed} ({copies})")
     else:
         overrides = f" with {' '.join(args.set)}" if args.set else ""
         print(
             f"Training preset '{preset.name}'{overrides} for {end:,} agent-steps{rounded}: {preset.n_envs} swarms of "
-            f"{preset.config.n_agents}, n_steps {model.n_steps}, {end // per_rollout} updates, seed {args.seed}"
+            f"{preset.config.n_agents}, n_steps {model.n_steps}, {end // per_rollout} updates, seed {args.seed} "
+            f"({copies})"
         )
     print(f"Checkpoints every {save_freq:,} agent-steps in {checkpoint_dir} (keeping {args.keep_checkpoints})")
+    print(f"If stopped, resume with: {_resume_command(output)}")  # now: a run killed by kill -9 prints nothing at its end
     start = time.perf_counter()
     with StopOnSignal() as stop:
         checkpoints = SwarmCheckpointCallback(
@@ -340,8 +379,12 @@ SEED_OPTIONS = ("evaluate", "eval_seed", "stochastic", "tensorboard", "save_freq
 value of each one not given again (the settings of :data:`RESUME_SETTINGS` must match, as for one seed)."""
 
 
-def _seed_argv(args: argparse.Namespace, settings: dict[str, Any], options: dict[str, Any], seed: int, resume: bool):
-    """The ``sb3-latentswarm`` arguments that train (or, with ``resume``, continue) one seed of ``train --seeds``."""
+def _seed_argv(
+    args: argparse.Namespace, settings: dict[str, Any], options: dict[str, Any], seed: int, resume: bool, n_envs: int
+):
+    """The ``sb3-latentswarm`` arguments that train (or, with ``resume``, continue) one seed of ``train --seeds``:
+    model seed ``seed``, env copies from :func:`~sb3_latentswarm.common.seeding.training_env_seed` ``(seed, n_envs)``
+    (a resumed seed takes both from its checkpoint)."""
     from sb3_latentswarm.train_seeds import seed_folder
 
     folder = seed_folder(args.output, seed)
@@ -350,7 +393,8 @@ def _seed_argv(args: argparse.Namespace, settings: dict[str, Any], options: dict
         argv.insert(1, "--resume")
         given = {"save_freq": args.save_freq, "keep_checkpoints": args.keep_checkpoints}
     else:
-        argv += ["--preset", settings["preset"], "--seed", str(seed), "--total-timesteps", str(settings["total_timesteps"])]
+        argv += ["--preset", settings["preset"], "--seed", str(seed), "--env-seed", str(training_env_seed(seed, n_envs))]
+        argv += ["--total-timesteps", str(settings["total_timesteps"])]
         argv += ["--backend", settings["backend"]]
         for pair in settings["set"] or []:
             argv += ["--set", pair]
@@ -416,21 +460,23 @@ def _command_train_seeds(args: argparse.Namespace, output: Path) -> int:
             f"--output {output} holds a single-seed run (model.zip or checkpoints/); train --seeds needs a folder of its "
             f"own: pass another --output"
         )
+    if args.env_seed is not None:
+        raise ValueError(
+            f"--env-seed {args.env_seed} with --seeds: each seed S+i trains its own env copies, (S+i) * n_envs + c "
+            f"(disjoint across seeds, as in sweep); --env-seed is for a single run"
+        )
     stored = (record or {}).get("options") or {}
     settings = _train_settings(args, (record or {}).get("settings"), source=SEEDS_RECORD)
+    del settings["env_seed"]  # each seed's own (training_env_seed), recorded in env_seeds below
     args.preset, args.set, args.seed, args.backend = settings["preset"], settings["set"], settings["seed"], settings["backend"]
     n_seeds = args.seeds or int((record or {}).get("seeds", 1))
     given = {name: getattr(args, name) for name in SEED_OPTIONS}
     options = {name: stored.get(name, value) if value is None or value is False else value for name, value in given.items()}
     args.evaluate, args.eval_seed = options["evaluate"], options["eval_seed"]
-    preset = _checked_training_preset(args)
+    preset = _checked_training_preset(args, n_seeds=n_seeds)  # --evaluate: held out from every seed's env copies
     settings["total_timesteps"] = settings["total_timesteps"] or preset.total_timesteps
     seeds = range(settings["seed"], settings["seed"] + n_seeds)
-    if options["evaluate"]:
-        from sb3_latentswarm.evaluation import check_held_out
-
-        for seed in seeds:
-            check_held_out(_eval_seed(args), preset.eval_episodes, seed, preset.n_envs)
+    env_seeds = {seed: training_env_seed(seed, preset.n_envs) for seed in seeds}
 
     states = {seed: seed_state(seed_folder(output, seed), bool(options["evaluate"])) for seed in seeds}
     if record is None:  # a new run: no seed folder may hold an earlier run's files
@@ -451,7 +497,7 @@ def _command_train_seeds(args: argparse.Namespace, output: Path) -> int:
         )
     room = 0
     if to_run:  # build seed S's env and model once: every setting is checked, and a checkpoint's size known
-        env = preset.make_env(settings["seed"], backend=args.backend)
+        env = preset.make_env(env_seeds[seeds.start], backend=args.backend)
         try:
             model = preset.make_model(env, seed=settings["seed"], device=args.device, verbose=0)
             room = 2 * estimate_checkpoint_bytes(model) * len(to_run)
@@ -465,6 +511,12 @@ def _command_train_seeds(args: argparse.Namespace, output: Path) -> int:
     record = {
         "settings": settings,
         "seeds": max(n_seeds, int((record or {}).get("seeds", 0))),
+        # first and last env copy seed of each seed started here (k * n_envs + c, as in sweep; a resumed seed keeps
+        # its checkpoint's): no two seeds share an env stream
+        "env_seeds": {
+            **(record or {}).get("env_seeds", {}),
+            **{str(seed): [base, base + preset.n_envs - 1] for seed, base in env_seeds.items() if states[seed] == "new"},
+        },
         "options": {name: stored.get(name, options[name]) if record else options[name] for name in SEED_OPTIONS},
         "results": (record or {}).get("results", {}),
         "version": __version__,
@@ -478,11 +530,20 @@ def _command_train_seeds(args: argparse.Namespace, output: Path) -> int:
         f"{settings['total_timesteps']:,} agent-steps each, {jobs} at a time ({each}), in "
         f"{output}/seed*/" + (f"; {len(skipped)} already trained" if skipped else "")
     )
+    print(
+        f"Seed k trains env copies k * {preset.n_envs} .. k * {preset.n_envs} + {preset.n_envs - 1} (none shared between "
+        f"seeds)"
+    )
+    print(f"If stopped, resume with: {_resume_command(output)}")  # now: kill -9 of this command prints nothing at its end
     for seed in skipped:
         print(f"seed {seed}: already trained, skipped ({seed_folder(output, seed) / 'model.zip'})")
     runs = [
-        SeedRun(seed, seed_folder(output, seed), _seed_argv(args, settings, options, seed, states[seed] == "unfinished"),
-                resume=states[seed] == "unfinished")
+        SeedRun(
+            seed,
+            seed_folder(output, seed),
+            _seed_argv(args, settings, options, seed, states[seed] == "unfinished", preset.n_envs),
+            resume=states[seed] == "unfinished",
+        )
         for seed in to_run
     ]
 
@@ -878,8 +939,8 @@ def build_parser() -> argparse.ArgumentParser:
             "--seed",
             type=int,
             default=0,
-            help="random seed (default 0): for train, the model's seed and the env copies' (copy k gets SEED + k); for "
-            "evaluate and render, the episode seed the evaluation episodes start from",
+            help="random seed (default 0): for train, the model's seed and the env copies' (copy k gets SEED + k, or "
+            "ENV_SEED + k with --env-seed); for evaluate and render, the episode seed the evaluation episodes start from",
         )
         p.add_argument(
             "--device",
@@ -907,7 +968,7 @@ def build_parser() -> argparse.ArgumentParser:
             type=int,
             default=None,
             help="first evaluation episode seed, episode k uses eval_seed + k (default 1000000: held out from the "
-            "training env seeds, which start at --seed)",
+            "training env seeds, which start at --env-seed, by default --seed)",
         )
 
     def add_trust_pickle(p: argparse.ArgumentParser) -> None:
@@ -967,12 +1028,22 @@ def build_parser() -> argparse.ArgumentParser:
         help="vec env backend: 'batched' (default, fast) or 'supersuit' (PettingZoo env via SuperSuit); same episodes",
     )
     train.add_argument(
+        "--env-seed",
+        type=int_at_least(0),
+        default=None,
+        metavar="ENV_SEED",
+        help="seed of the first env copy, copy k gets ENV_SEED + k (default: --seed; with --resume, the run's). "
+        "--seeds sets it for each seed",
+    )
+    train.add_argument(
         "--seeds",
         type=int_at_least(1),
         default=None,
         metavar="K",
         help="train seeds SEED .. SEED+K-1, each by this command in a single-thread process of its own, into "
-        "OUTPUT/seedN/ (default 1: one seed, into OUTPUT itself); rerun with --resume to continue the unfinished ones",
+        "OUTPUT/seedN/ (default 1: one seed, into OUTPUT itself); seed N's env copies get N * n_envs + k, as in sweep, "
+        "so no two seeds share an env stream (--seed alone would give seed N copies N + k, shared with seed N+1); rerun "
+        "with --resume to continue the unfinished ones",
     )
     train.add_argument(
         "--jobs",

@@ -14,6 +14,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch as th
 
@@ -68,23 +69,29 @@ def two_seeds(tmp_path_factory) -> tuple[Path, str, str]:
 def test_two_seeds_with_two_jobs_write_two_complete_seed_folders_whose_models_differ(two_seeds, tmp_path):
     output, out, err = two_seeds
     assert {p.name for p in output.iterdir()} == {SEEDS_RECORD, "seed0", "seed1"}
+    assert f"If stopped, resume with: sb3-latentswarm train --resume --output {output}" in out
     for seed in (0, 1):
         folder = output / f"seed{seed}"
         assert {p.name for p in folder.iterdir()} == SMOKE_FILES | {"train.log"}
-        assert f"--seed {seed}" in (folder / "train.log").read_text().splitlines()[0]
+        log = (folder / "train.log").read_text()
+        # the sweep's rule: seed k's n_envs = 2 copies are 2k, 2k + 1
+        assert f"--seed {seed} --env-seed {2 * seed} " in log.splitlines()[0]
+        assert f"seed {seed} (env copies {2 * seed}..{2 * seed + 1})" in log
         assert f"seed {seed}: trained in" in out and "s CPU, last rollout coverage" in out
     first, second = parameters(output / "seed0" / "model.zip"), parameters(output / "seed1" / "model.zip")
     assert any(not th.equal(first[key], second[key]) for key in first)
     assert "--jobs 2 runs 2 torch thread(s) at once, but this process may run on 1 core(s)" in err
 
-    # a seed folder holds what the single-seed train writes, with the same model
+    # a seed folder holds what the single-seed train with its env seed writes, with the same model
     single = tmp_path / "single"
-    assert main(["train", "--preset", "smoke", "--seed", "1", "--output", str(single), "--no-progress"]) == 0
+    argv = ["train", "--preset", "smoke", "--seed", "1", "--env-seed", "2", "--output", str(single), "--no-progress"]
+    assert main(argv) == 0
     assert {p.name for p in single.iterdir()} == SMOKE_FILES
     assert all(th.equal(value, second[key]) for key, value in parameters(single / "model.zip").items())
 
     record = json.loads((output / SEEDS_RECORD).read_text())
     assert record["seeds"] == 2 and record["settings"]["preset"] == "smoke" and record["settings"]["seed"] == 0
+    assert record["env_seeds"] == {"0": [0, 1], "1": [2, 3]} and "env_seed" not in record["settings"]
     for seed in ("0", "1"):
         result = record["results"][seed]
         assert result["status"] == "trained" and result["exit_code"] == 0 and result["cpu_seconds"] > 0
@@ -124,7 +131,12 @@ def test_rerun_skips_finished_seeds_continues_unfinished_ones_and_names_a_failed
         (["--seeds", "2", "--jobs", "0"], "--jobs: expected an int >= 1, got '0'"),
         (["--seeds", "2", "--set", "p_fail=1.5"], "p_fail must be a finite number in [0.0, 1.0]"),
         (["--seeds", "2", "--set", "n_steps=0"], "n_steps"),
-        (["--seeds", "3", "--evaluate", "--eval-seed", "3"], "overlap the training env copies' seeds 2-3"),
+        # seed 2's copies are 4, 5 (the sweep's rule), not 2, 3
+        (["--seeds", "3", "--evaluate", "--eval-seed", "5"], "overlap the training env copies' seeds 4-5"),
+        (["--evaluate", "--env-seed", "3", "--eval-seed", "4"], "overlap the training env copies' seeds 3-4"),
+        (["--env-seed", "-1"], "--env-seed: expected an int >= 0, got '-1'"),
+        (["--env-seed", "1.5"], "--env-seed: expected an int >= 0, got '1.5'"),
+        (["--seeds", "2", "--env-seed", "3"], "--env-seed 3 with --seeds"),
         (["--seeds", "2", "--resume"], "no run of train --seeds in"),
     ],
 )
@@ -157,6 +169,84 @@ def test_folders_holding_other_runs_are_refused_before_any_process_starts(two_se
     shutil.copytree(two_seeds[0], copy)
     code, _, err = run_main("train", "--resume", "--seed", "5", "--output", str(copy))
     assert code == 2 and "seed (seeds.json: 0, command: 5)" in err
+
+
+def test_neighbouring_seeds_env_copies_share_no_reset_seed(two_seeds):
+    """Copy 1 of seed 0 and copy 0 of seed 1 start from different seeds (with ``--seed`` alone they were one stream)."""
+    from sb3_latentswarm.presets import get_preset
+
+    record = json.loads((two_seeds[0] / SEEDS_RECORD).read_text())
+    copies = [set(range(first, last + 1)) for first, last in record["env_seeds"].values()]
+    assert len(copies) == 2 and not copies[0] & copies[1]
+    preset = get_preset("smoke")
+    agents = preset.config.n_agents
+
+    def reset(base: int, copy: int) -> dict:
+        env = preset.make_env(base)
+        try:
+            return {key: value[copy * agents:(copy + 1) * agents] for key, value in env.reset().items()}
+        finally:
+            env.close()
+
+    seed0_copy1, seed1_copy0 = reset(record["env_seeds"]["0"][0], 1), reset(record["env_seeds"]["1"][0], 0)
+    assert any(not np.array_equal(seed0_copy1[key], seed1_copy0[key]) for key in seed0_copy1)
+    old_seed1_copy0 = reset(1, 0)  # train --seed 1: copy 0 seeded 1, copy 1 of seed 0 too
+    assert all(np.array_equal(seed0_copy1[key], old_seed1_copy0[key]) for key in seed0_copy1)
+
+
+def test_a_single_train_seed_keeps_its_env_copies_and_resume_keeps_the_env_seed(tmp_path):
+    from sb3_latentswarm.checkpoints import latest_checkpoint, list_checkpoints, read_checkpoint_state
+
+    output = tmp_path / "run"
+    argv = ["train", "--preset", "smoke", "--seed", "1", "--total-timesteps", "240", "--save-freq", "120"]
+    code, out, _ = run_main(*argv, "--output", str(output), "--no-progress")
+    assert code == 0 and "seed 1 (env copies 1..2)" in out  # unchanged: copy k gets --seed + k
+    assert f"If stopped, resume with: sb3-latentswarm train --resume --output {output}" in out
+    reference = parameters(output / "model.zip")
+    assert read_checkpoint_state(latest_checkpoint(output / "checkpoints"))["settings"]["env_seed"] == 1
+
+    # the same run with --env-seed 1 is the same model; stopped after its first update, it resumes on the same envs
+    other = tmp_path / "other"
+    assert run_main(*argv, "--env-seed", "1", "--output", str(other), "--no-progress")[0] == 0
+    assert all(th.equal(value, reference[key]) for key, value in parameters(other / "model.zip").items())
+    (other / "model.zip").unlink()
+    latest_checkpoint(other / "checkpoints").unlink()
+    assert len(list_checkpoints(other / "checkpoints")) == 1
+    code, _, err = run_main("train", "--resume", "--env-seed", "5", "--output", str(other))
+    assert code == 2 and "env_seed (checkpoint: 1, command: 5)" in err
+    code, out, _ = run_main("train", "--resume", "--output", str(other), "--no-progress")
+    assert code == 0 and "seed 1 (env copies 1..2)" in out
+    assert all(th.equal(value, reference[key]) for key, value in parameters(other / "model.zip").items())
+
+
+def test_a_checkpoint_from_before_env_seed_resumes_on_copies_of_its_seed():
+    import argparse
+
+    from sb3_latentswarm.cli import _train_settings
+
+    args = argparse.Namespace(preset=None, set=None, seed=None, env_seed=None, total_timesteps=None, backend=None,
+                              output="run")
+    stored = {"preset": "smoke", "set": [], "seed": 3, "total_timesteps": 240, "backend": "batched"}
+    assert _train_settings(args, stored)["env_seed"] == 3
+    assert _train_settings(args)["env_seed"] == 0  # a new run: --seed's default
+    args.env_seed = 4
+    with pytest.raises(ValueError, match=r"env_seed \(checkpoint: 3, command: 4\)"):
+        _train_settings(args, stored)
+
+
+def test_the_resume_command_uses_the_name_the_user_ran(monkeypatch):
+    import importlib.metadata
+
+    from sb3_latentswarm.cli import _resume_command
+
+    scripts = [importlib.metadata.EntryPoint("swarm", "sb3_latentswarm.cli:main", "console_scripts"),
+               importlib.metadata.EntryPoint("other", "another.cli:main", "console_scripts")]
+    monkeypatch.setattr(importlib.metadata, "entry_points", lambda group: scripts)
+    for argv0, name in [("/venv/bin/swarm", "swarm"), ("/venv/bin/swarm.exe", "swarm"),
+                        ("/venv/bin/other", "sb3-latentswarm"), ("/x/sb3_latentswarm/cli.py", "sb3-latentswarm"),
+                        ("", "sb3-latentswarm")]:
+        monkeypatch.setattr(sys, "argv", [argv0])
+        assert _resume_command(Path("runs/a b")) == f"{name} train --resume --output 'runs/a b'"
 
 
 def test_one_seed_keeps_the_single_run_layout(tmp_path):

@@ -1,10 +1,12 @@
 """``sb3-latentswarm train --seeds K [--jobs J]``: K training seeds of one run, each in its own single-thread process.
 
-Seed ``S + i`` is trained by the single-seed command, ``python -m sb3_latentswarm.cli train --seed S+i --output
-OUTPUT/seedS+i ...``, in a process of its own with one torch thread (``OMP_NUM_THREADS=1``, ``MKL_NUM_THREADS=1``), at
-most J processes at a time: there is one implementation of training, and every seed folder holds exactly what a
-single ``train`` writes (``model.zip``, ``config.json``, ``progress.csv``, ``checkpoints/``, the tables of
-``--evaluate``), plus ``train.log``, the process's output.
+Seed ``S + i`` is trained by the single-seed command, ``python -m sb3_latentswarm.cli train --seed S+i --env-seed
+(S+i)*n_envs --output OUTPUT/seedS+i ...`` (env copy ``c`` seeded ``(S+i) * n_envs + c``, the rule of ``sweep``,
+:func:`~sb3_latentswarm.common.seeding.training_env_seed`: no two seeds share an env copy), in a process of its own
+with one torch thread (``OMP_NUM_THREADS=1``, ``MKL_NUM_THREADS=1``), at most J processes at a time: there is one
+implementation of training, and every seed folder holds exactly what a single ``train`` writes (``model.zip``,
+``config.json``, ``progress.csv``, ``checkpoints/``, the tables of ``--evaluate``), plus ``train.log``, the
+process's output.
 
 Why processes and not threads: these recurrent networks are small, a training step is many short kernels, and a
 second OpenMP thread spin-waits for a core that another process holds. On this project's 2-core machine under load,

@@ -1,6 +1,7 @@
 """The ``sb3-latentswarm`` command: ``train``, ``evaluate``, ``render`` and ``sweep``.
 
     sb3-latentswarm train --preset demo --evaluate          # the README's main job
+    sb3-latentswarm train --preset coordination --seeds 3   # seeds 0, 1, 2: one single-thread process each
     sb3-latentswarm evaluate --model runs/demo/model.zip --p-fail-sweep   # on the env config saved with the model
     sb3-latentswarm render --model runs/demo/model.zip --output episode.gif
     sb3-latentswarm sweep --preset fast --seeds 5           # seeds x variants on Ray Tune, across-seed intervals
@@ -20,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_latentswarm.common.checks import check_int
+from sb3_latentswarm.common.seeding import training_env_seed
 from sb3_latentswarm.presets import PRESETS, Preset, get_preset, override_targets, unknown_settings_message
 from sb3_latentswarm.version import __version__
 
@@ -119,57 +121,115 @@ def _print_table(title: str, markdown: str) -> None:
 CHECKPOINTS = "checkpoints"
 """Subfolder of ``train --output`` holding the run's checkpoints (:mod:`sb3_latentswarm.checkpoints`)."""
 
-RESUME_SETTINGS = ("preset", "set", "seed", "total_timesteps", "backend")
+RESUME_SETTINGS = ("preset", "set", "seed", "env_seed", "total_timesteps", "backend")
 """The ``train`` options a checkpoint stores and ``--resume`` compares (given ones must match; missing ones are taken
-from the checkpoint)."""
+from the checkpoint; a checkpoint without ``env_seed``, from before ``--env-seed``, seeded its env copies from
+``seed``)."""
 
 
-def _train_settings(args: argparse.Namespace, stored: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The run's settings: the options given, else (with ``--resume``) the checkpoint's, else the defaults.
+def _train_settings(
+    args: argparse.Namespace, stored: dict[str, Any] | None = None, source: str = "checkpoint"
+) -> dict[str, Any]:
+    """The run's settings: the options given, else (with ``--resume``) the stored ones, else the defaults.
 
-    :raise ValueError: with ``--resume``, for a given option that differs from the checkpoint's, naming both values
+    :param stored: the settings of the run being resumed (a checkpoint's, or ``train --seeds``'s record)
+    :param source: what ``stored`` comes from, for the message
+    :raise ValueError: with ``--resume``, for a given option that differs from the stored one, naming both values
     """
     stored = stored or {}
     given = {
         "preset": args.preset,
         "set": sorted(args.set) if args.set else None,
         "seed": args.seed,
+        "env_seed": args.env_seed,
         "total_timesteps": args.total_timesteps,
         "backend": args.backend,
     }
     if stored:
+        if stored.get("env_seed") is None:  # a run from before --env-seed: its env copies were seeded from --seed
+            stored = {**stored, "env_seed": stored.get("seed")}
+
         def same(name: str, value: Any) -> bool:
             if name == "set":  # the same settings in any order
                 return parse_overrides(value) == parse_overrides(stored.get(name) or [])
             return value == stored.get(name)
 
         differ = [
-            f"{name} (checkpoint: {stored.get(name)!r}, command: {value!r})"
+            f"{name} ({source}: {stored.get(name)!r}, command: {value!r})"
             for name, value in given.items()
             if value is not None and not same(name, value)
         ]
         if differ:
             raise ValueError(
                 f"--resume: the run in {args.output} was started with other settings: {'; '.join(differ)}. Resume with "
-                f"the run's settings (omit the options to take them from the checkpoint) or start a new run in another "
+                f"the run's settings (omit the options to take them from the {source}) or start a new run in another "
                 f"--output"
             )
         return {name: stored.get(name) for name in RESUME_SETTINGS}
     defaults = {"preset": "demo", "set": [], "seed": 0, "total_timesteps": None, "backend": "batched"}
-    return {name: defaults[name] if value is None else value for name, value in given.items()}
+    settings = {name: defaults.get(name) if value is None else value for name, value in given.items()}
+    if settings["env_seed"] is None:  # the default: copy c gets --seed + c, as before --env-seed
+        settings["env_seed"] = settings["seed"]
+    return settings
+
+
+def _program_name() -> str:
+    """The name the user ran this command by: ``basename(sys.argv[0])`` when that is one of the package's console
+    scripts (``sb3-latentswarm``), else ``sb3-latentswarm`` (``python -m sb3_latentswarm.cli``, a test runner)."""
+    import os
+    from importlib.metadata import entry_points
+
+    name = os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else ""
+    for suffix in ("-script.py", ".exe"):  # the launchers pip writes on Windows
+        name = name.removesuffix(suffix)
+    try:
+        scripts = {ep.name for ep in entry_points(group="console_scripts") if ep.value.startswith(f"{__name__}:")}
+    except Exception:  # broken package metadata must not stop a run from printing how to resume it
+        scripts = set()
+    return name if name in scripts else "sb3-latentswarm"
 
 
 def _resume_command(output: Path) -> str:
+    """``sb3-latentswarm train --resume --output OUTPUT``, by the name the user ran (:func:`_program_name`)."""
     import shlex
 
-    return f"sb3-latentswarm train --resume --output {shlex.quote(str(output))}"
+    return f"{_program_name()} train --resume --output {shlex.quote(str(output))}"
+
+
+def _checked_training_preset(args: argparse.Namespace, n_seeds: int | None = None) -> Preset:
+    """The preset of ``args`` (``--preset``, ``--set``) with its algorithm settings validated, and with ``--evaluate``
+    its evaluation episodes held out from the training env copies: before any env is built or file written.
+
+    :param n_seeds: ``None`` for one run (copies ``ENV_SEED .. ENV_SEED + n_envs - 1``, ``ENV_SEED`` defaulting to
+        ``--seed``); else the number of seeds of ``train --seeds``, whose seed ``S + i`` trains the copies of
+        :func:`~sb3_latentswarm.common.seeding.training_env_seed` ``(S + i, n_envs)``
+    """
+    from sb3_latentswarm.latent_ppo.latent_ppo import validate_algorithm_kwargs
+
+    preset = _preset_from_args(args, training=True)
+    check_int("n_envs", preset.n_envs, low=1)  # before any arithmetic with it
+    check_int("n_steps", preset.algo_kwargs["n_steps"], low=1)
+    validate_algorithm_kwargs(**preset.algo_kwargs)
+    if args.evaluate:
+        check_int("eval_episodes", preset.eval_episodes, low=1)
+        # the evaluation episodes must not replay a training env copy's first episode
+        from sb3_latentswarm.evaluation import check_held_out
+
+        if n_seeds is None:
+            bases = [args.seed if args.env_seed is None else args.env_seed]
+        else:
+            bases = [training_env_seed(args.seed + i, preset.n_envs) for i in range(n_seeds)]
+        for base in bases:
+            check_held_out(_eval_seed(args), preset.eval_episodes, base, preset.n_envs)
+    return preset
 
 
 def command_train(args: argparse.Namespace) -> int:
     """``train``: validate every setting, probe the output folder, train with checkpoints, save ``model.zip``.
 
     ``--resume`` continues the newest checkpoint in ``--output``; SIGINT / SIGTERM write a checkpoint and exit with
-    128 + the signal number (see ``docs/long_runs.md``).
+    128 + the signal number (see ``docs/long_runs.md``). ``--seeds K`` > 1 (or an ``--output`` holding a
+    ``seeds.json``) runs this command once per seed, in processes of their own (:func:`_command_train_seeds`).
     """
     from sb3_latentswarm.callbacks import RolloutProgressBarCallback, whole_rollouts
     from sb3_latentswarm.checkpoints import (
@@ -183,12 +243,14 @@ def command_train(args: argparse.Namespace) -> int:
     )
     from sb3_latentswarm.common.atomic import probe_writable, write_json
     from sb3_latentswarm.latent_ppo import LatentSwarmPPO
-    from sb3_latentswarm.latent_ppo.latent_ppo import validate_algorithm_kwargs
+    from sb3_latentswarm.train_seeds import SEEDS_RECORD
 
     output = Path(args.output or f"runs/{args.preset or 'demo'}")
     args.output = str(output)
     if output.exists() and not output.is_dir():
         raise ValueError(f"--output {output} is an existing file, not a folder")
+    if (args.seeds or 1) > 1 or (output / SEEDS_RECORD).exists():
+        return _command_train_seeds(args, output)
     checkpoint_dir = output / CHECKPOINTS
     latest = latest_checkpoint(checkpoint_dir)
     state: dict[str, Any] = {}
@@ -208,11 +270,10 @@ def command_train(args: argparse.Namespace) -> int:
         )
     settings = _train_settings(args, state.get("settings"))
     args.preset, args.set, args.seed, args.backend = settings["preset"], settings["set"], settings["seed"], settings["backend"]
-    preset = _preset_from_args(args, training=True)
+    args.env_seed = settings["env_seed"]
+    preset = _checked_training_preset(args)
     total = settings["total_timesteps"] or preset.total_timesteps
     settings["total_timesteps"] = total
-    check_int("n_envs", preset.n_envs, low=1)  # before any arithmetic with it
-    check_int("n_steps", preset.algo_kwargs["n_steps"], low=1)
     per_update = preset.agent_steps_per_update
     stored = state.get("settings") or {}
     if args.save_freq is None:  # the run's own frequency on --resume (not compared: it changes no result)
@@ -221,15 +282,8 @@ def command_train(args: argparse.Namespace) -> int:
         args.keep_checkpoints = stored.get("keep_checkpoints", 3)
     save_freq = args.save_freq
 
-    validate_algorithm_kwargs(**preset.algo_kwargs)  # before any env is built or file written
-    if args.evaluate:
-        check_int("eval_episodes", preset.eval_episodes, low=1)
-        # the evaluation episodes must not replay a training env copy's first episode
-        from sb3_latentswarm.evaluation import check_held_out
-
-        check_held_out(_eval_seed(args), preset.eval_episodes, args.seed, preset.n_envs)
     # every setting is checked here, by building the env and the model, before any folder is created
-    env = preset.make_env(args.seed, backend=args.backend)
+    env = preset.make_env(args.env_seed, backend=args.backend)
     tensorboard = args.tensorboard if args.tensorboard is not None else (state.get("settings") or {}).get("tensorboard")
     if state:
         model = LatentSwarmPPO.load_checkpoint(latest, env=env, device=args.device, tensorboard_log=tensorboard)
@@ -261,15 +315,18 @@ def command_train(args: argparse.Namespace) -> int:
     # learn() collects whole rollouts: the run ends at the budget rounded up to them (the progress bar's total)
     end = model.num_timesteps + (whole_rollouts(remaining, per_rollout) if remaining > 0 else 0)
     rounded = f" ({total:,} rounded up to whole rollouts of {per_rollout:,})" if end != total else ""
+    copies = f"env copies {args.env_seed}..{args.env_seed + preset.n_envs - 1}"
     if state:
-        print(f"Resuming {latest} at {model.num_timesteps:,} of {end:,} agent-steps{rounded}")
+        print(f"Resuming {latest} at {model.num_timesteps:,} of {end:,} agent-steps{rounded}, seed {args.seed} ({copies})")
     else:
         overrides = f" with {' '.join(args.set)}" if args.set else ""
         print(
             f"Training preset '{preset.name}'{overrides} for {end:,} agent-steps{rounded}: {preset.n_envs} swarms of "
-            f"{preset.config.n_agents}, n_steps {model.n_steps}, {end // per_rollout} updates, seed {args.seed}"
+            f"{preset.config.n_agents}, n_steps {model.n_steps}, {end // per_rollout} updates, seed {args.seed} "
+            f"({copies})"
         )
     print(f"Checkpoints every {save_freq:,} agent-steps in {checkpoint_dir} (keeping {args.keep_checkpoints})")
+    print(f"If stopped, resume with: {_resume_command(output)}")  # now: a run killed by kill -9 prints nothing at its end
     start = time.perf_counter()
     with StopOnSignal() as stop:
         checkpoints = SwarmCheckpointCallback(
@@ -314,6 +371,236 @@ def command_train(args: argparse.Namespace) -> int:
         return stop.exit_code
     if args.evaluate:
         _evaluate_and_print(model, preset, args, output, p_fail_sweep=False, baselines=True, model_path=model_path)
+    return 0
+
+
+SEED_OPTIONS = ("evaluate", "eval_seed", "stochastic", "tensorboard", "save_freq", "keep_checkpoints")
+"""``train --seeds`` options stored in its record and passed to every seed's process; ``--resume`` takes the stored
+value of each one not given again (the settings of :data:`RESUME_SETTINGS` must match, as for one seed)."""
+
+
+def _seed_argv(
+    args: argparse.Namespace, settings: dict[str, Any], options: dict[str, Any], seed: int, resume: bool, n_envs: int
+):
+    """The ``sb3-latentswarm`` arguments that train (or, with ``resume``, continue) one seed of ``train --seeds``:
+    model seed ``seed``, env copies from :func:`~sb3_latentswarm.common.seeding.training_env_seed` ``(seed, n_envs)``
+    (a resumed seed takes both from its checkpoint)."""
+    from sb3_latentswarm.train_seeds import seed_folder
+
+    folder = seed_folder(args.output, seed)
+    argv = ["train", "--output", str(folder), "--no-progress", "--device", args.device, "--verbose", str(args.verbose)]
+    if resume:  # the settings, TensorBoard run, save_freq and keep_checkpoints are the seed checkpoint's
+        argv.insert(1, "--resume")
+        given = {"save_freq": args.save_freq, "keep_checkpoints": args.keep_checkpoints}
+    else:
+        argv += ["--preset", settings["preset"], "--seed", str(seed), "--env-seed", str(training_env_seed(seed, n_envs))]
+        argv += ["--total-timesteps", str(settings["total_timesteps"])]
+        argv += ["--backend", settings["backend"]]
+        for pair in settings["set"] or []:
+            argv += ["--set", pair]
+        given = {name: options[name] for name in ("save_freq", "keep_checkpoints")}
+        if options["tensorboard"] is not None:
+            argv += ["--tensorboard", str(Path(options["tensorboard"]) / f"seed{seed}")]
+    for name, value in given.items():
+        if value is not None:
+            argv += [f"--{name.replace('_', '-')}", str(value)]
+    if args.threads:
+        argv += ["--threads", str(args.threads)]
+    if options["evaluate"]:
+        argv.append("--evaluate")
+    if options["eval_seed"] is not None:
+        argv += ["--eval-seed", str(options["eval_seed"])]
+    if options["stochastic"]:
+        argv.append("--stochastic")
+    return tuple(argv)
+
+
+def _last_line(path: Path, limit: int = 300) -> str:
+    """The last non-empty line of a text file (at most ``limit`` characters), ``""`` where there is none."""
+    try:
+        lines = [line.strip() for line in path.read_text(errors="replace").splitlines() if line.strip()]
+    except OSError:
+        return ""
+    return lines[-1][:limit] if lines else ""
+
+
+def _command_train_seeds(args: argparse.Namespace, output: Path) -> int:
+    """``train --seeds K [--jobs J]``: seeds ``S .. S+K-1`` in ``OUTPUT/seed{S+i}/``, each by the single-seed
+    ``train`` in a single-thread process of its own (:mod:`sb3_latentswarm.train_seeds`), at most J at a time.
+
+    Every argument, the preset's settings (by building the env and model of seed S) and the folders are checked
+    before any process starts or any file is written. ``--resume`` (or the same command with ``--resume``) skips the
+    finished seeds, continues the unfinished ones from their checkpoints and starts the others.
+
+    :return: 0; 1 when a seed failed; 128 + the signal's number when stopped by SIGINT / SIGTERM / SIGHUP
+    """
+    from sb3_latentswarm.checkpoints import estimate_checkpoint_bytes, latest_checkpoint
+    from sb3_latentswarm.common.atomic import probe_writable, write_json
+    from sb3_latentswarm.threads import available_cores
+    from sb3_latentswarm.train_seeds import SEEDS_RECORD, SeedRun, run_seed_processes, seed_folder, seed_state
+
+    record_path = output / SEEDS_RECORD
+    record: dict[str, Any] | None = None
+    if record_path.exists():
+        try:
+            record = json.loads(record_path.read_text())
+            if not isinstance(record, dict) or not isinstance(record.get("settings"), dict):
+                raise ValueError("not a seeds record")
+        except (OSError, ValueError) as error:  # JSONDecodeError is a ValueError
+            raise ValueError(f"--output {output}: {record_path} is not a readable record of train --seeds ({error})") from None
+        if not args.resume:
+            raise ValueError(
+                f"--output {output} holds the seeds of an earlier run ({record_path}); continue them with --resume, or "
+                f"pass another --output"
+            )
+    elif args.resume:
+        raise ValueError(f"--resume --seeds: no run of train --seeds in {output} (no {SEEDS_RECORD}); train without --resume")
+    elif latest_checkpoint(output / CHECKPOINTS) is not None or (output / "model.zip").exists():
+        raise ValueError(
+            f"--output {output} holds a single-seed run (model.zip or checkpoints/); train --seeds needs a folder of its "
+            f"own: pass another --output"
+        )
+    if args.env_seed is not None:
+        raise ValueError(
+            f"--env-seed {args.env_seed} with --seeds: each seed S+i trains its own env copies, (S+i) * n_envs + c "
+            f"(disjoint across seeds, as in sweep); --env-seed is for a single run"
+        )
+    stored = (record or {}).get("options") or {}
+    settings = _train_settings(args, (record or {}).get("settings"), source=SEEDS_RECORD)
+    del settings["env_seed"]  # each seed's own (training_env_seed), recorded in env_seeds below
+    args.preset, args.set, args.seed, args.backend = settings["preset"], settings["set"], settings["seed"], settings["backend"]
+    n_seeds = args.seeds or int((record or {}).get("seeds", 1))
+    given = {name: getattr(args, name) for name in SEED_OPTIONS}
+    options = {name: stored.get(name, value) if value is None or value is False else value for name, value in given.items()}
+    args.evaluate, args.eval_seed = options["evaluate"], options["eval_seed"]
+    preset = _checked_training_preset(args, n_seeds=n_seeds)  # --evaluate: held out from every seed's env copies
+    settings["total_timesteps"] = settings["total_timesteps"] or preset.total_timesteps
+    seeds = range(settings["seed"], settings["seed"] + n_seeds)
+    env_seeds = {seed: training_env_seed(seed, preset.n_envs) for seed in seeds}
+
+    states = {seed: seed_state(seed_folder(output, seed), bool(options["evaluate"])) for seed in seeds}
+    if record is None:  # a new run: no seed folder may hold an earlier run's files
+        for seed in seeds:
+            folder = seed_folder(output, seed)
+            if states[seed] != "new" or any((folder / f"{name}.csv").exists() for name in EVALUATION_TABLES):
+                raise ValueError(f"--output {output}: {folder} holds an earlier run; pass another --output")
+    to_run = [seed for seed in seeds if states[seed] != "finished"]
+    cores = available_cores()
+    threads = args.threads or 1
+    jobs = min(args.jobs or cores, max(len(to_run), 1))
+    if jobs * threads > cores:
+        print(
+            f"sb3-latentswarm train: warning: --jobs {jobs} runs {jobs * threads} torch thread(s) at once, but this "
+            f"process may run on {cores} core(s): processes that wait for a core are slower in all, and two threads on "
+            f"a loaded 2-core machine ran a coordination update 50x slower than one (docs/benchmarks.md)",
+            file=sys.stderr,
+        )
+    room = 0
+    if to_run:  # build seed S's env and model once: every setting is checked, and a checkpoint's size known
+        env = preset.make_env(env_seeds[seeds.start], backend=args.backend)
+        try:
+            model = preset.make_model(env, seed=settings["seed"], device=args.device, verbose=0)
+            room = 2 * estimate_checkpoint_bytes(model) * len(to_run)
+            del model
+        finally:
+            env.close()
+    probe_writable(output, room_bytes=room)
+    if options["tensorboard"] is not None:
+        probe_writable(options["tensorboard"])
+
+    record = {
+        "settings": settings,
+        "seeds": max(n_seeds, int((record or {}).get("seeds", 0))),
+        # first and last env copy seed of each seed started here (k * n_envs + c, as in sweep; a resumed seed keeps
+        # its checkpoint's): no two seeds share an env stream
+        "env_seeds": {
+            **(record or {}).get("env_seeds", {}),
+            **{str(seed): [base, base + preset.n_envs - 1] for seed, base in env_seeds.items() if states[seed] == "new"},
+        },
+        "options": {name: stored.get(name, options[name]) if record else options[name] for name in SEED_OPTIONS},
+        "results": (record or {}).get("results", {}),
+        "version": __version__,
+    }
+    write_json(record_path, record)
+    overrides = f" with {' '.join(settings['set'])}" if settings["set"] else ""
+    each = "one torch thread each" if threads == 1 else f"{threads} torch threads each"
+    skipped = [seed for seed in seeds if states[seed] == "finished"]
+    print(
+        f"Training {n_seeds} seeds ({seeds.start}..{seeds.stop - 1}) of preset '{preset.name}'{overrides}, "
+        f"{settings['total_timesteps']:,} agent-steps each, {jobs} at a time ({each}), in "
+        f"{output}/seed*/" + (f"; {len(skipped)} already trained" if skipped else "")
+    )
+    print(
+        f"Seed k trains env copies k * {preset.n_envs} .. k * {preset.n_envs} + {preset.n_envs - 1} (none shared between "
+        f"seeds)"
+    )
+    print(f"If stopped, resume with: {_resume_command(output)}")  # now: kill -9 of this command prints nothing at its end
+    for seed in skipped:
+        print(f"seed {seed}: already trained, skipped ({seed_folder(output, seed) / 'model.zip'})")
+    runs = [
+        SeedRun(
+            seed,
+            seed_folder(output, seed),
+            _seed_argv(args, settings, options, seed, states[seed] == "unfinished", preset.n_envs),
+            resume=states[seed] == "unfinished",
+        )
+        for seed in to_run
+    ]
+
+    def started(run: SeedRun) -> None:
+        how = "continuing from its newest checkpoint" if run.resume else "started"
+        print(f"seed {run.seed}: {how} (log {run.log})", flush=True)
+
+    def finished(result) -> None:
+        record["results"][str(result.seed)] = result.as_record()
+        write_json(record_path, record)
+        if result.status == "not started":
+            return
+        cpu = f", {result.cpu_seconds:.0f} s CPU" if result.cpu_seconds is not None else ""
+        took = f"{result.wall_seconds:.0f} s{cpu}"
+        if result.status == "trained":
+            coverage = f", last rollout coverage {result.coverage:.3f}" if result.coverage is not None else ""
+            print(f"seed {result.seed}: trained in {took}{coverage} ({result.folder / 'model.zip'})", flush=True)
+        else:
+            print(f"seed {result.seed}: {result.status} (exit code {result.exit_code}) after {took}; log {result.log}",
+                  flush=True)
+
+    results, signum = run_seed_processes(runs, jobs, threads, on_start=started, on_finish=finished)
+    trained = [result for result in results if result.status == "trained"]
+    failed = [result for result in results if result.status == "failed"]
+    coverages = [result.coverage for result in trained if result.coverage is not None]
+    summary = f"\n{len(trained)} seed(s) trained, {len(skipped)} skipped (already trained), {len(failed)} failed"
+    if signum is not None:
+        summary += f", {len(results) - len(trained) - len(failed)} stopped or not started"
+    if coverages:
+        summary += (
+            f"; last rollout coverage of the trained ones: mean {sum(coverages) / len(coverages):.3f} "
+            f"(min {min(coverages):.3f}, max {max(coverages):.3f})"
+        )
+    print(summary)
+    if signum is not None:
+        import signal
+
+        stopped = [str(result.seed) for result in results if result.status == "stopped"]
+        waiting = [str(result.seed) for result in results if result.status == "not started"]
+        print(
+            f"\nStopped by {signal.Signals(signum).name}: seed(s) {', '.join(stopped) or 'none'} wrote a checkpoint"
+            + (f", seed(s) {', '.join(waiting)} not started" if waiting else "")
+            + f". Resume every unfinished seed with:\n  {_resume_command(output)}",
+            file=sys.stderr,
+        )
+        return 128 + int(signum)
+    if failed:
+        lines = "\n".join(
+            f"  seed {result.seed}: exit code {result.exit_code}, log {result.log}: {_last_line(result.log)}"
+            for result in failed
+        )
+        print(
+            f"sb3-latentswarm train: {len(failed)} seed(s) failed:\n{lines}\nFix the cause and rerun the unfinished "
+            f"seeds with:\n  {_resume_command(output)}",
+            file=sys.stderr,
+        )
+        return 1
     return 0
 
 
@@ -659,9 +946,9 @@ def build_parser() -> argparse.ArgumentParser:
             "--seed",
             type=int,
             default=0,
-            help="random seed (default 0): for train, the model's seed and the env copies' (copy k gets SEED + k); for "
-            "render, the episode's env seed; for evaluate, the random baseline's seed (the episodes' seeds are "
-            "--eval-seed's)",
+            help="random seed (default 0): for train, the model's seed and the env copies' (copy k gets SEED + k, or "
+            "ENV_SEED + k with --env-seed); for render, the episode's env seed; for evaluate, the random baseline's "
+            "seed (the episodes' seeds are --eval-seed's)",
         )
         p.add_argument(
             "--device",
@@ -689,7 +976,7 @@ def build_parser() -> argparse.ArgumentParser:
             type=int,
             default=None,
             help="first evaluation episode seed, episode k uses eval_seed + k (default 1000000: held out from the "
-            "training env seeds, which start at --seed)",
+            "training env seeds, which start at --env-seed, by default --seed)",
         )
 
     def add_trust_pickle(p: argparse.ArgumentParser) -> None:
@@ -747,6 +1034,31 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         choices=("batched", "supersuit"),
         help="vec env backend: 'batched' (default, fast) or 'supersuit' (PettingZoo env via SuperSuit); same episodes",
+    )
+    train.add_argument(
+        "--env-seed",
+        type=int_at_least(0),
+        default=None,
+        metavar="ENV_SEED",
+        help="seed of the first env copy, copy k gets ENV_SEED + k (default: --seed; with --resume, the run's). "
+        "--seeds sets it for each seed",
+    )
+    train.add_argument(
+        "--seeds",
+        type=int_at_least(1),
+        default=None,
+        metavar="K",
+        help="train seeds SEED .. SEED+K-1, each by this command in a single-thread process of its own, into "
+        "OUTPUT/seedN/ (default 1: one seed, into OUTPUT itself); seed N's env copies get N * n_envs + k, as in sweep, "
+        "so no two seeds share an env stream (--seed alone would give seed N copies N + k, shared with seed N+1); rerun "
+        "with --resume to continue the unfinished ones",
+    )
+    train.add_argument(
+        "--jobs",
+        type=int_at_least(1),
+        default=None,
+        metavar="J",
+        help="with --seeds: processes at a time (default: the cores this process may run on, at most K; more warns)",
     )
     train.set_defaults(func=command_train, preset=None, seed=None)
 

@@ -25,6 +25,7 @@ import pandas as pd
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_latentswarm import evaluation
+from sb3_latentswarm.common.seeding import training_env_seed
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.presets import Preset, get_preset
 
@@ -86,11 +87,6 @@ def grid_labels(grid_point: dict[str, Any]) -> dict[str, Any]:
     """The grid point as table columns, ``grid.<name>``: apart from the evaluation's own columns (``p_fail`` is also
     the p_f of an evaluation cell)."""
     return {f"grid.{name}": value for name, value in grid_point.items()}
-
-
-def training_env_seed(train_seed: int, n_envs: int) -> int:
-    """Base seed of the training env copies of training seed ``train_seed`` (copy ``c``: base + ``c``)."""
-    return train_seed * n_envs
 
 
 def conditions_for(variant: str, conditions: Sequence[str]) -> list[str]:

@@ -1,0 +1,27 @@
+"""Env seeds of training seeds: one rule for ``sweep`` and ``train --seeds`` (a light module: no torch, no SB3).
+
+A training seed ``k`` trains ``n_envs`` env copies. Copy ``c`` of a run whose first copy has seed ``base`` is seeded
+with ``base + c`` (:meth:`~sb3_latentswarm.presets.Preset.make_env`). With ``base = k`` (what ``train --seed k``
+does), neighbouring training seeds share ``n_envs - 1`` copies: copy 1 of seed 0 is copy 0 of seed 1. With
+``base = k * n_envs`` (:func:`training_env_seed`), the copies of different training seeds are disjoint.
+"""
+
+from __future__ import annotations
+
+from sb3_latentswarm.common.checks import check_int
+
+__all__ = ["training_env_seed"]
+
+
+def training_env_seed(train_seed: int, n_envs: int) -> int:
+    """Base seed of the training env copies of training seed ``train_seed`` (copy ``c``: base + ``c``).
+
+    ``train_seed * n_envs``: the copies ``k * n_envs .. (k + 1) * n_envs - 1`` of training seed ``k`` meet no other
+    training seed's copies. Used by ``sweep`` trials and by each seed of ``train --seeds``.
+
+    :param train_seed: the training seed (the model's seed), >= 0
+    :param n_envs: env copies per run, >= 1
+    :return: the seed of env copy 0
+    :raises TypeError, ValueError: ``train_seed`` not an int >= 0, ``n_envs`` not an int >= 1
+    """
+    return check_int("train_seed", train_seed, low=0) * check_int("n_envs", n_envs, low=1)

@@ -6,7 +6,8 @@ intervals (the sweep's aggregation), and whether the target is met, for each act
 default sampled actions first (the paper's protocol, Sec. III-D: commands are sampled from the Gaussian policy at
 execution), then mean actions. A mode the sweep evaluated in is read from its ``scores.csv``; another mode is
 measured here on the sweep's saved models, in the same cells, on the same held-out episode seeds, and its scores are
-written as ``scores_<mode>.csv`` in ``--output`` (reused on the next call). One figure per claim
+written as ``scores_<mode>.csv`` in ``--output`` (reused on the next call, which measures only the trials finished
+since). One figure per claim
 (``claim_<k>_<name>.png``: the cells the claim compares, with their intervals). Nothing is tuned here.
 
     python examples/paper_claims.py --sweep runs/sweeps/coordination --burst-cells table1=10 burst30=30
@@ -27,13 +28,16 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Collection
 from pathlib import Path
 
 import pandas as pd
 
+from sb3_latentswarm.common.atomic import write_text
 from sb3_latentswarm.evaluation import seed_range, to_markdown
 from sb3_latentswarm.experiments.aggregate import aggregate_scores
 from sb3_latentswarm.experiments.report import plot_cells
+from sb3_latentswarm.experiments.trial import finished_trial_dirs
 
 ACTION_MODES = ("sampled", "mean")
 """``--actions`` choices; ``deterministic`` of ``evaluate`` is ``mode == "mean"``."""
@@ -128,8 +132,9 @@ def sweep_mode(spec: dict) -> str:
     return "mean" if spec.get("deterministic", True) else "sampled"
 
 
-def evaluate_sweep(sweep: Path, spec: dict, mode: str) -> pd.DataFrame:
-    """Run scores of the sweep's finished trials evaluated with ``mode`` actions, in the sweep's cells and episodes.
+def evaluate_sweep(sweep: Path, spec: dict, mode: str, skip: Collection[str] = ()) -> pd.DataFrame:
+    """Run scores of the sweep's finished trials (but those in ``skip``, trial ids already measured) evaluated with
+    ``mode`` actions, in the sweep's cells and episodes.
 
     The same cells (``spec["eval_sets"]``), episode count and seeds as the sweep's own evaluation
     (:func:`~sb3_latentswarm.experiments.trial.evaluate_sets`, :func:`~sb3_latentswarm.experiments.trial.run_scores`).
@@ -140,11 +145,13 @@ def evaluate_sweep(sweep: Path, spec: dict, mode: str) -> pd.DataFrame:
     from sb3_latentswarm import LatentSwarmPPO
     from sb3_latentswarm.baselines import IndependentRecurrentPPO
     from sb3_latentswarm.experiments.report import CELL_COLUMNS
-    from sb3_latentswarm.experiments.trial import EvalSet, evaluate_sets, finished_trial_dirs, run_scores, trial_preset
+    from sb3_latentswarm.experiments.trial import EvalSet, evaluate_sets, run_scores, trial_preset
 
     eval_sets = [EvalSet.from_dict(s) for s in spec["eval_sets"]]
     frames = []
     for folder in finished_trial_dirs(sweep):
+        if folder.name in skip:
+            continue
         record = json.loads((folder / "trial.json").read_text())
         variant = record["variant"]
         preset = trial_preset(spec["preset"], spec["overrides"], record["grid_point"])
@@ -210,7 +217,7 @@ def claim_figures(
     return paths
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sweep", required=True, help="a sweep output folder (with scores.csv and sweep.json)")
     parser.add_argument("--base-cell", default="table1", help="the cell at the training config (Table I's conditions)")
@@ -219,7 +226,7 @@ def main() -> None:
     parser.add_argument("--actions", nargs="+", choices=ACTION_MODES, default=list(ACTION_MODES),
                         help="action modes, in the order reported (default: sampled, the paper's protocol, then mean)")
     parser.add_argument("--output", default=None, help="folder for claims.md/csv (default: the sweep folder)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     sweep = Path(args.sweep)
     if not (sweep / "scores.csv").exists():
         parser.error(f"--sweep: no scores.csv in {sweep} (run the sweep, or write its report, first)")
@@ -241,8 +248,12 @@ def main() -> None:
             scores, source = pd.read_csv(sweep / "scores.csv"), "the sweep's `scores.csv`"
         else:
             path = output / f"scores_{mode}.csv"
-            if not path.exists():
-                evaluate_sweep(sweep, spec, mode).to_csv(path, index=False)
+            earlier = pd.read_csv(path) if path.exists() else None
+            done = set(earlier["trial_id"]) if earlier is not None else set()
+            if any(folder.name not in done for folder in finished_trial_dirs(sweep)):  # trials finished since
+                new = evaluate_sweep(sweep, spec, mode, skip=done)
+                write_text(path, pd.concat([earlier, new], ignore_index=True).to_csv(index=False) if earlier is not None
+                           else new.to_csv(index=False))
             scores, source = pd.read_csv(path), f"`{path.name}`, measured by this script on the sweep's models"
         first_scores = scores if first_scores is None else first_scores
         table = pd.DataFrame(check_claims(scores, args.base_cell, burst_cells, p_fail_cells))
@@ -251,13 +262,13 @@ def main() -> None:
         note = " (the paper's protocol, Sec. III-D)" if mode == "sampled" else " (the Gaussian's mean)"
         sections.append(f"## {mode.capitalize()} actions{note}\n\nScores from {source}; {seeds}.\n\n"
                         + to_markdown(table.drop(columns="actions")) + "\n")
-    pd.concat(tables, ignore_index=True).to_csv(output / "claims.csv", index=False)
+    write_text(output / "claims.csv", pd.concat(tables, ignore_index=True).to_csv(index=False))
     seeds_per_variant = pd.read_csv(sweep / "scores.csv").groupby("variant")["train_seed"].nunique().to_dict()
     header = (f"Claims on sweep `{sweep}` (preset `{spec['preset']}`, overrides {spec['overrides']}; training seeds "
               f"per variant: {seeds_per_variant}). Means across training seeds with 95 % stratified-bootstrap "
               "intervals.\n\n")
     markdown = header + "\n".join(sections)
-    (output / "claims.md").write_text(markdown)
+    write_text(output / "claims.md", markdown)
     figures = claim_figures(first_scores, args.base_cell, burst_cells, p_fail_cells, output)  # the first mode's cells
     print(markdown)
     print("Figures: " + ", ".join(str(path) for path in figures))

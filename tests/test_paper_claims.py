@@ -97,3 +97,31 @@ def test_script_writes_claims_beside_the_sweep(tmp_path):
     text = (tmp_path / "claims.md").read_text()
     assert "spread 2.00" in text and text.index("## Sampled actions") < text.index("## Mean actions")
     assert "episode seeds 1000000-1000009" in text
+
+
+def test_a_second_call_measures_only_the_trials_finished_since(tmp_path, monkeypatch, capsys):
+    scores = synthetic_scores()
+    scores.to_csv(tmp_path / "scores.csv", index=False)
+    eval_sets = [{"name": "table1", "overrides": {}, "conditions": None}]
+    spec = {"preset": "smoke", "overrides": {}, "eval_sets": eval_sets, "eval_seed": 1_000_000, "eval_episodes": 10,
+            "deterministic": True}
+    (tmp_path / "sweep.json").write_text(json.dumps(spec))
+    measured = []
+
+    def fake_evaluate_sweep(sweep, spec, mode, skip=()):
+        todo = [p.name for p in paper_claims.finished_trial_dirs(sweep) if p.name not in skip]
+        measured.append(todo)
+        return scores[scores["trial_id"].isin(todo)]
+
+    monkeypatch.setattr(paper_claims, "evaluate_sweep", fake_evaluate_sweep)
+    for trial_id in ("proposed-seed0", "no_comm-seed0"):
+        (tmp_path / "trials" / trial_id).mkdir(parents=True)
+        (tmp_path / "trials" / trial_id / "trial.json").write_text("{}")
+    paper_claims.main(["--sweep", str(tmp_path), "--actions", "sampled"])
+    (tmp_path / "trials" / "proposed-seed1").mkdir()
+    (tmp_path / "trials" / "proposed-seed1" / "trial.json").write_text("{}")
+    paper_claims.main(["--sweep", str(tmp_path), "--actions", "sampled"])
+    paper_claims.main(["--sweep", str(tmp_path), "--actions", "sampled"])  # nothing new: nothing measured
+    assert measured == [["no_comm-seed0", "proposed-seed0"], ["proposed-seed1"]]
+    kept = pd.read_csv(tmp_path / "scores_sampled.csv")
+    assert sorted(kept["trial_id"].unique()) == ["no_comm-seed0", "proposed-seed0", "proposed-seed1"]

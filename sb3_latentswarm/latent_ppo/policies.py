@@ -203,8 +203,19 @@ def gru_cell(inputs: th.Tensor, hidden: th.Tensor, cell: nn.GRUCell) -> th.Tenso
     :param cell: the ``GRUCell`` whose ``weight_ih``, ``bias_ih``, ``weight_hh``, ``bias_hh`` are used
     :return: h', (B, hidden_size), float32 (the dtype of ``hidden``)
     """
-    input_r, input_z, input_n = F.linear(inputs, cell.weight_ih, cell.bias_ih).float().chunk(3, dim=-1)
-    hidden_r, hidden_z, hidden_n = F.linear(hidden, cell.weight_hh, cell.bias_hh).float().chunk(3, dim=-1)
+    return gru_update(F.linear(inputs, cell.weight_ih, cell.bias_ih), F.linear(hidden, cell.weight_hh, cell.bias_hh), hidden)
+
+
+def gru_update(input_gates: th.Tensor, hidden_gates: th.Tensor, hidden: th.Tensor) -> th.Tensor:
+    """The gates and new state of ``torch.nn.GRUCell`` from its two projections (:func:`gru_cell`), in float32.
+
+    :param input_gates: W_ih x + b_ih, (B, 3 hidden_size), gates in the order r, z, n (float32 or bfloat16)
+    :param hidden_gates: W_hh h + b_hh, (B, 3 hidden_size)
+    :param hidden: h, (B, hidden_size), float32
+    :return: h', (B, hidden_size), float32
+    """
+    input_r, input_z, input_n = input_gates.float().chunk(3, dim=-1)
+    hidden_r, hidden_z, hidden_n = hidden_gates.float().chunk(3, dim=-1)
     reset = th.sigmoid(input_r + hidden_r)
     update = th.sigmoid(input_z + hidden_z)
     new = th.tanh(input_n + reset * hidden_n)
@@ -732,26 +743,18 @@ class LatentSwarmPolicy(BasePolicy):
         :param episode_starts: (T, B)
         """
         n_steps = actions.shape[0]
-        state = initial_state
-        task_states, map_states, received, predicted, has_message = [], [], [], [], []
         # what does not depend on the recurrence is prepared for all T steps at once
         inputs = self.step_inputs({key: obs[key] for key in ACTOR_OBS_KEYS}, episode_starts)
         # one autocast region for the sequence (with autocast="bf16"): each weight is cast to bf16 once, not per step
         with self.latent_autocast():
-            # the recurrence is the only loop: over time; every step handles all agents of all swarms at once
-            for t in range(n_steps):
-                step = self.recurrent_step(StepInputs._make(field[t] for field in inputs), state)
-                state = step.state
-                task_states.append(state.task_state)
-                map_states.append(state.map_state)
-                received.append(step.received_message)
-                predicted.append(step.predicted_message)
-                has_message.append(step.has_message)
+            if self._compiled_latent_step is None:
+                task_state, map_state, received, predicted, has_message = self._replay_latent_sequence(inputs, initial_state)
+            else:  # the compiled step, one call per step
+                task_state, map_state, received, predicted, has_message = self._replay_latent_steps(inputs, initial_state)
             critic_obs = {key: obs[key].flatten(0, 1) for key in STATE_OBS_KEYS}
             values = self.critic_output(critic_obs).view(n_steps, -1)
-            map_reconstruction = self.decode_map(th.stack(map_states))
+            map_reconstruction = self.decode_map(map_state)
         # the action heads and log-probabilities in float32
-        task_state = th.stack(task_states)  # (T, B, d_tau)
         distribution = self.action_distribution(task_state.flatten(0, 1))
         flat_actions = actions.flatten(0, 1)
         log_prob = distribution.log_prob(flat_actions).view(n_steps, -1)
@@ -761,10 +764,120 @@ class LatentSwarmPolicy(BasePolicy):
             log_prob=log_prob,
             entropy=entropy,
             map_reconstruction=map_reconstruction,
-            received_message=th.stack(received),
-            predicted_message=th.stack(predicted),
-            has_message=th.stack(has_message),
+            received_message=received,
+            predicted_message=predicted,
+            has_message=has_message,
         )
+
+    def _replay_latent_steps(self, inputs: StepInputs, state: LatentState) -> tuple[th.Tensor, ...]:
+        """The latent updates of a training sequence, one :meth:`recurrent_step` per step (the rollout's computation).
+
+        :return: tau_t, mu_t, m_t, mhat_t (T, B, dim each), has_message (T, B)
+        """
+        outputs: list[list[th.Tensor]] = [[], [], [], [], []]
+        for t in range(inputs.keep.shape[0]):
+            step = self.recurrent_step(StepInputs._make(field[t] for field in inputs), state)
+            state = step.state
+            for output, value in zip(outputs, (state.task_state, state.map_state, step.received_message,
+                                               step.predicted_message, step.has_message)):
+                output.append(value)
+        return tuple(th.stack(output) for output in outputs)
+
+    def _replay_latent_sequence(self, inputs: StepInputs, state: LatentState) -> tuple[th.Tensor, ...]:
+        """The latent updates of a training sequence with the recurrence-free arithmetic batched over the chunk.
+
+        The same equations as :meth:`recurrent_step` (``nn.GRUCell``'s r, z, n gates with b_ih and b_hh), arranged for
+        time-major sequences: each GRU's input projection W_ih x is split by input columns into the part that reads the
+        observations (o_t, e_t, p_t and the previous step's o_{t-1}), computed as one GEMM over all T * B rows before
+        the loop, and the part that reads the recurrent state (messages, mu_{t-1}, tau_{t-1}, mbar_{t-1}), computed
+        per step; likewise the first layer of the predictor P_zeta. When the substitute is not the predictor, mhat_t
+        does not feed the recurrence and is computed after the loop for all rows at once. The sums of the split
+        projections round differently from the rollout's one GEMM: float32 results agree with
+        :meth:`_replay_latent_steps` to about 1e-6.
+
+        :param inputs: :meth:`step_inputs` of the sequence, leading dims (T, B)
+        :param state: the state carried into the first step, (B, ...) per field
+        :return: tau_t, mu_t, m_t, mhat_t (T, B, dim each), has_message (T, B)
+        """
+        o_dim, e_dim, d_mu, d_tau, d_rho = self.local_obs_dim, self.proprio_dim, self.map_dim, self.task_dim, self.memory_dim
+        n_steps, (n_swarms, n_agents) = inputs.keep.shape[0], inputs.link_mask.shape[1:3]
+        batch = n_swarms * n_agents
+        local_obs, proprio, keep = inputs.local_obs, inputs.proprio, inputs.keep  # (T, B, o_dim), (T, B, e_dim), (T, B, 1)
+        map_cell, task_cell, memory_cell = self.map_encoder, self.task_encoder, self.memory_encoder
+        predictor_in, predictor_out = self.message_predictor[0], self.message_predictor[2]
+        use_predictor = self.message_substitute == "predicted"
+
+        # recurrence-free input projections, one GEMM each over T * B rows: the input columns of each W_ih (and of
+        # P_zeta's first layer) that read o_t, p_t, e_t, o_{t-1}; the bias b_ih rides on them
+        observed = th.cat([local_obs, proprio], dim=-1)  # (T, B, o_dim + e_dim)
+        map_x = F.linear(th.cat([local_obs, inputs.position], dim=-1), map_cell.weight_ih[:, : o_dim + POSITION_DIMS],
+                         map_cell.bias_ih)  # (T, B, 3 d_mu)
+        task_x = F.linear(observed, task_cell.weight_ih[:, : o_dim + e_dim], task_cell.bias_ih)  # (T, B, 3 d_tau)
+        # o_{t-1}: the stored one before the first step, zeroed at episode starts as the carried state is
+        local_prev = th.cat([state.prev_local_obs.unsqueeze(0), local_obs[:-1]]) * keep
+        memory_x = F.linear(local_prev, memory_cell.weight_ih[:, d_tau : d_tau + o_dim], memory_cell.bias_ih)
+        if use_predictor:
+            predictor_x = F.linear(observed, predictor_in.weight[:, d_rho:], predictor_in.bias)  # (T, B, predictor_hidden)
+        # the columns that read the recurrent state, each cast once to the autocast dtype (a slice is not in autocast's
+        # weight cache)
+        map_w = self._recurrent_weight(map_cell.weight_ih[:, o_dim + POSITION_DIMS :])  # reads m^mu_t
+        task_w = self._recurrent_weight(task_cell.weight_ih[:, o_dim + e_dim :])  # reads [mu_{t-1}; mbar_t]
+        memory_w = self._recurrent_weight(th.cat([memory_cell.weight_ih[:, :d_tau], memory_cell.weight_ih[:, d_tau + o_dim :]],
+                                                 dim=1))  # reads [tau_{t-1}; mbar_{t-1}]
+        predictor_w = self._recurrent_weight(predictor_in.weight[:, :d_rho])  # reads rho_t
+
+        map_state, task_state, memory_state, message, held = state.map_state, state.task_state, state.memory_state, \
+            state.prev_message, state.held_message
+        outputs: list[list[th.Tensor]] = [[], [], [], [], []]
+        for t in range(n_steps):
+            keep_t = keep[t]
+            map_prev, task_prev, memory_prev, message_prev, held_prev = (
+                field * keep_t for field in (map_state, task_state, memory_state, message, held)
+            )
+            # Sec. III-B: z_{t-1}^j = [mu_{t-1}^j; tau_{t-1}^j],  m_t^i = mean_{j in N_t^i} z_{t-1}^j
+            sent_message = th.cat([map_prev, task_prev], dim=-1)  # (B, d_msg)
+            messages = sent_message.view(n_swarms, n_agents, self.message_dim)
+            received_message = (th.bmm(inputs.link_mask[t], messages) / inputs.in_degree[t]).view(batch, self.message_dim)
+            # Sec. III-A: rho_t = G_psi(rho_{t-1}, tau_{t-1}, o_{t-1}, mbar_{t-1})   (no_memory: rho zeroed before use)
+            if self.no_memory:
+                memory_prev = th.zeros_like(memory_prev)
+            memory_gates = th.addmm(memory_x[t], th.cat([task_prev, message_prev], dim=-1), memory_w.t())
+            memory_state = gru_update(memory_gates, F.linear(memory_prev, memory_cell.weight_hh, memory_cell.bias_hh),
+                                      memory_prev)
+            # Sec. III-C: mhat_t = P_zeta(rho_t, o_t, e_t);  mbar_t = m_t if N_t^i != {} else the substitute
+            received_now = inputs.has_message[t].unsqueeze(-1)
+            if use_predictor:
+                hidden = predictor_x[t] if self.no_memory else th.addmm(predictor_x[t], memory_state, predictor_w.t())
+                substitute = predictor_out(th.tanh(hidden))
+                outputs[3].append(substitute)
+            else:
+                outputs[3].append(memory_state)
+                if self.message_substitute == "zero":
+                    substitute = th.zeros_like(received_message)
+                elif self.message_substitute == "hold_last":
+                    substitute = held_prev
+                else:  # own_message
+                    substitute = sent_message
+            held = th.where(received_now, received_message, held_prev).float()
+            message = th.where(received_now, received_message, substitute).float()
+            # Sec. III-A, asymmetric update: mu_t = E_phi(mu_{t-1}, o_t, p_t, m^mu_t), m^mu_t = 0 when nothing arrived
+            map_gates = th.addmm(map_x[t], received_message[:, :d_mu], map_w.t())
+            map_state = gru_update(map_gates, F.linear(map_prev, map_cell.weight_hh, map_cell.bias_hh), map_prev)
+            # Sec. III-A: tau_t = F_theta(tau_{t-1}, o_t, e_t, mu_{t-1}, mbar_t)
+            task_gates = th.addmm(task_x[t], th.cat([map_prev, message], dim=-1), task_w.t())
+            task_state = gru_update(task_gates, F.linear(task_prev, task_cell.weight_hh, task_cell.bias_hh), task_prev)
+            for output, value in zip(outputs, (task_state, map_state, received_message)):
+                output.append(value)
+            outputs[4].append(inputs.has_message[t])
+        task_states, map_states, received, predicted, has_message = (th.stack(output) for output in outputs)
+        if not use_predictor:  # mhat_t did not feed the recurrence: all T * B rows at once (rho_t zeroed under no_memory)
+            memory_used = th.zeros_like(predicted) if self.no_memory else predicted
+            predicted = self.message_predictor(th.cat([memory_used, observed], dim=-1))
+        return task_states, map_states, received.float(), predicted.float(), has_message
+
+    def _recurrent_weight(self, weight: th.Tensor) -> th.Tensor:
+        """A weight of the per-step GEMMs, cast once to the autocast dtype under :attr:`autocast` (as it is)."""
+        return weight if self.autocast is None else weight.to(th.get_autocast_dtype(self.device.type))
 
     def _predict(self, observation: dict[str, th.Tensor], deterministic: bool = False) -> th.Tensor:  # type: ignore[override]
         raise RuntimeError("LatentSwarmPolicy is recurrent: call predict(obs, state, episode_start, deterministic)")

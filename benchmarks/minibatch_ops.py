@@ -12,7 +12,9 @@ minibatches, so the once-per-update work of ``train`` is shared out):
   host (``capturable=False``), reading them is no device sync;
 * ``CPU s``: per-thread CPU seconds (``time.thread_time``) of the training call, median over ``--repeats`` calls;
 * ``replay``: the largest difference between the log-probabilities recomputed by ``evaluate_sequences`` for the
-  rollout's actions and those the rollout stored (PPO's ratio is exactly 1 before the first step when it is 0).
+  rollout's actions and the old log-probabilities ``train`` uses (PPO's ratio is exactly 1 before the first step when
+  it is 0): the rollout's own, or under autocast those ``LatentSwarmPPO.recompute_old_log_probs`` put in their place;
+  ``rollout``: the same against the rollout's own log-probabilities.
 
 Variants (``--autocast none bf16``; without ``--autocast`` the preset's own setting) are built in the same process
 and timed in alternation. ``--compare REV`` measures
@@ -105,14 +107,22 @@ def build(preset_name: str, minibatches: int, autocast: str | None = PRESET, see
     _, callback = model._setup_learn(model.n_steps * model.n_envs, callback=None)
     callback.on_training_start(locals(), globals())
     model.collect_rollouts(model.env, callback, model.rollout_buffer, n_rollout_steps=model.n_steps)
+    model.rollout_error = replay_error(model)
+    if getattr(model, "autocast", None) is not None and hasattr(model, "recompute_old_log_probs"):
+        model.recompute_old_log_probs()  # what train() does first under autocast
+    model.replay_error = replay_error(model)
+    model.train()  # warm-up: moves the rollout to tensors once, allocates the optimizer's state
+    return model
+
+
+def replay_error(model: LatentSwarmPPO) -> float:
+    """The largest |replayed - stored| log-probability over the rollout's minibatches (each shuffled by ``get``)."""
     with th.no_grad():
-        model.replay_error = max(
+        return max(
             float((model.policy.evaluate_sequences(b.observations, b.actions, b.latent_state, b.episode_starts).log_prob
                    - b.old_log_prob).abs().max())
             for b in model.rollout_buffer.get(model.batch_size)
         )
-    model.train()  # warm-up: moves the rollout to tensors once, allocates the optimizer's state
-    return model
 
 
 def measure(preset_name: str, autocasts: list[str | None], minibatches: int, repeats: int) -> list[dict[str, Any]]:
@@ -143,6 +153,7 @@ def measure(preset_name: str, autocasts: list[str | None], minibatches: int, rep
                 "syncs": sum(row["syncs"].values()) / minibatches,
                 "cpu_s": statistics.median(row["cpu"]) / minibatches,
                 "replay": models[name].replay_error,
+                "rollout": models[name].rollout_error,
                 "sync_sites": dict(row["syncs"]),
                 "top_ops": dict(row["ops"].most_common(8)),
             }
@@ -152,11 +163,12 @@ def measure(preset_name: str, autocasts: list[str | None], minibatches: int, rep
 
 def print_table(rows: list[dict[str, Any]], label: str = "", sites: bool = False) -> None:
     header = ("code", 8), ("preset", 13), ("d", 4), ("batch", 6), ("autocast", 8), ("aten ops", 9), ("syncs", 6),
-    print(" ".join(f"{name:>{width}}" for name, width in (*header, ("CPU s", 7), ("replay", 8))))
+    print(" ".join(f"{name:>{width}}" for name, width in (*header, ("CPU s", 7), ("replay", 8), ("rollout", 8))))
     for row in rows:
         print(
             f"{label or row.get('code', 'new'):>8} {row['preset']:>13} {row['latent_dim']:>4} {row['batch_size']:>6} "
-            f"{row['autocast']:>8} {row['ops']:>9.0f} {row['syncs']:>6.1f} {row['cpu_s']:>7.3f} {row['replay']:>8.1e}"
+            f"{row['autocast']:>8} {row['ops']:>9.0f} {row['syncs']:>6.1f} {row['cpu_s']:>7.3f} {row['replay']:>8.1e} "
+            f"{row.get('rollout', math.nan):>8.1e}"
         )
         if sites:
             for site, count in sorted(row["sync_sites"].items(), key=lambda item: -item[1]):

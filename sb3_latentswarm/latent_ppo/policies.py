@@ -743,14 +743,9 @@ class LatentSwarmPolicy(BasePolicy):
         :param episode_starts: (T, B)
         """
         n_steps = actions.shape[0]
-        # what does not depend on the recurrence is prepared for all T steps at once
-        inputs = self.step_inputs({key: obs[key] for key in ACTOR_OBS_KEYS}, episode_starts)
         # one autocast region for the sequence (with autocast="bf16"): each weight is cast to bf16 once, not per step
         with self.latent_autocast():
-            if self._compiled_latent_step is None:
-                task_state, map_state, received, predicted, has_message = self._replay_latent_sequence(inputs, initial_state)
-            else:  # the compiled step, one call per step
-                task_state, map_state, received, predicted, has_message = self._replay_latent_steps(inputs, initial_state)
+            task_state, map_state, received, predicted, has_message = self._replay_latent(obs, initial_state, episode_starts)
             critic_obs = {key: obs[key].flatten(0, 1) for key in STATE_OBS_KEYS}
             values = self.critic_output(critic_obs).view(n_steps, -1)
             map_reconstruction = self.decode_map(map_state)
@@ -768,6 +763,26 @@ class LatentSwarmPolicy(BasePolicy):
             predicted_message=predicted,
             has_message=has_message,
         )
+
+    def sequence_log_prob(
+        self, obs: dict[str, th.Tensor], actions: th.Tensor, initial_state: LatentState, episode_starts: th.Tensor
+    ) -> th.Tensor:
+        """log pi(a_t | tau_t) of time-major sequences, (T, B): the ``log_prob`` of :meth:`evaluate_sequences` (the same
+        numbers), without the critic, the map decoder and the entropy (which samples for the squashed Gaussian)."""
+        with self.latent_autocast():
+            task_state = self._replay_latent(obs, initial_state, episode_starts)[0]
+        return self.action_distribution(task_state.flatten(0, 1)).log_prob(actions.flatten(0, 1)).view(actions.shape[0], -1)
+
+    def _replay_latent(
+        self, obs: dict[str, th.Tensor], state: LatentState, episode_starts: th.Tensor
+    ) -> tuple[th.Tensor, ...]:
+        """tau_t, mu_t, m_t, mhat_t (T, B, dim each) and has_message (T, B) of time-major sequences (in the caller's
+        autocast region)."""
+        # what does not depend on the recurrence is prepared for all T steps at once
+        inputs = self.step_inputs({key: obs[key] for key in ACTOR_OBS_KEYS}, episode_starts)
+        if self._compiled_latent_step is None:
+            return self._replay_latent_sequence(inputs, state)
+        return self._replay_latent_steps(inputs, state)  # the compiled step, one call per step
 
     def _replay_latent_steps(self, inputs: StepInputs, state: LatentState) -> tuple[th.Tensor, ...]:
         """The latent updates of a training sequence, one :meth:`recurrent_step` per step (the rollout's computation).
@@ -808,16 +823,17 @@ class LatentSwarmPolicy(BasePolicy):
         use_predictor = self.message_substitute == "predicted"
 
         # recurrence-free input projections, one GEMM each over T * B rows: the input columns of each W_ih (and of
-        # P_zeta's first layer) that read o_t, p_t, e_t, o_{t-1}; the bias b_ih rides on them
+        # P_zeta's first layer) that read o_t, p_t, e_t, o_{t-1}; the bias b_ih rides on them. Split into per-step views
+        # by unbind, whose backward stacks the T gradients once (indexing [t] would zero-fill a (T, B, .) gradient per step)
         observed = th.cat([local_obs, proprio], dim=-1)  # (T, B, o_dim + e_dim)
         map_x = F.linear(th.cat([local_obs, inputs.position], dim=-1), map_cell.weight_ih[:, : o_dim + POSITION_DIMS],
-                         map_cell.bias_ih)  # (T, B, 3 d_mu)
-        task_x = F.linear(observed, task_cell.weight_ih[:, : o_dim + e_dim], task_cell.bias_ih)  # (T, B, 3 d_tau)
+                         map_cell.bias_ih).unbind(0)  # T x (B, 3 d_mu)
+        task_x = F.linear(observed, task_cell.weight_ih[:, : o_dim + e_dim], task_cell.bias_ih).unbind(0)  # T x (B, 3 d_tau)
         # o_{t-1}: the stored one before the first step, zeroed at episode starts as the carried state is
         local_prev = th.cat([state.prev_local_obs.unsqueeze(0), local_obs[:-1]]) * keep
-        memory_x = F.linear(local_prev, memory_cell.weight_ih[:, d_tau : d_tau + o_dim], memory_cell.bias_ih)
+        memory_x = F.linear(local_prev, memory_cell.weight_ih[:, d_tau : d_tau + o_dim], memory_cell.bias_ih).unbind(0)
         if use_predictor:
-            predictor_x = F.linear(observed, predictor_in.weight[:, d_rho:], predictor_in.bias)  # (T, B, predictor_hidden)
+            predictor_x = F.linear(observed, predictor_in.weight[:, d_rho:], predictor_in.bias).unbind(0)  # T x (B, hidden)
         # the columns that read the recurrent state, each cast once to the autocast dtype (a slice is not in autocast's
         # weight cache)
         map_w = self._recurrent_weight(map_cell.weight_ih[:, o_dim + POSITION_DIMS :])  # reads m^mu_t

@@ -14,7 +14,7 @@ from torch.overrides import TorchFunctionMode
 from sb3_latentswarm import LatentSwarmPPO, SwarmConfig
 from sb3_latentswarm.common.value_norm import ValueNorm
 from sb3_latentswarm.envs import make_vec_env
-from sb3_latentswarm.latent_ppo.policies import gru_cell
+from sb3_latentswarm.latent_ppo.policies import SequenceLinear, gru_cell
 
 SMALL = SwarmConfig(n_agents=3, grid_width=10, grid_height=10, max_steps=7, num_obstacles=5, p_fail=0.5)
 TINY_POLICY = dict(latent_dim=8, predictor_hidden=16, decoder_hidden=16, critic_hidden=16, actor_hidden=16)
@@ -70,6 +70,46 @@ def test_gru_cell_is_torch_grucell():
     grads_got = th.autograd.grad((got * weights).sum(), [inputs, hidden, *cell.parameters()])
     for g_expected, g_got in zip(grads_expected, grads_got):
         th.testing.assert_close(g_got, g_expected, atol=1e-6, rtol=0)
+
+
+def recurrence(weight, bias, added, hidden, deferred, dtype=th.float32):
+    """h_{t+1} = tanh(h_t W^T + b + c_t) over T steps, through SequenceLinear; the stacked states, float32."""
+    linear = SequenceLinear(weight, bias, dtype, deferred)
+    states = []
+    for added_t in added.unbind(0):
+        hidden = th.tanh(linear(hidden, added_t).float())
+        states.append(hidden)
+    return th.stack(states)
+
+
+@pytest.mark.parametrize("dtype", [th.float32, th.bfloat16])
+def test_sequence_linear_sums_the_weight_gradient_once_per_sequence(dtype):
+    generator = th.Generator().manual_seed(0)
+    weight = (th.randn(16, 16, generator=generator) / 4).requires_grad_()
+    bias = th.randn(16, generator=generator).requires_grad_()
+    added = th.randn(7, 5, 16, generator=generator).requires_grad_()  # (T, B, N)
+    hidden = th.randn(5, 16, generator=generator).requires_grad_()
+    readout = th.randn(7, 5, 16, generator=generator)
+    leaves = [weight, bias, added, hidden]
+    results = {}
+    for deferred in (True, False):
+        states = recurrence(weight, bias, added, hidden, deferred, dtype)
+        loss = (states * readout).sum()
+        first = th.autograd.grad(loss, leaves, retain_graph=True)
+        second = th.autograd.grad(loss, leaves)  # a retained graph's second pass: the per-sequence sums start afresh
+        for g_first, g_second in zip(first, second):
+            assert th.equal(g_first, g_second)
+        results[deferred] = states, first
+    (states, grads), (expected_states, expected_grads) = results[True], results[False]
+    assert th.equal(states, expected_states)  # the same forward GEMMs
+    for got, expected in zip(grads, expected_grads):
+        if dtype == th.float32:
+            th.testing.assert_close(got, expected, atol=1e-5 * float(expected.abs().max()), rtol=0)
+        else:  # bf16: the per-step gradients are summed in bf16 by autograd, once in a float32-accumulating GEMM here
+            cosine = th.nn.functional.cosine_similarity(got.flatten().double(), expected.flatten().double(), dim=0)
+            assert cosine > 0.999
+    with th.no_grad():
+        assert th.equal(recurrence(weight, bias, added, hidden, True, dtype), expected_states)
 
 
 @pytest.mark.parametrize("autocast", [None, "bf16"])

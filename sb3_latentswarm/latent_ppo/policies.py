@@ -222,6 +222,86 @@ def gru_update(input_gates: th.Tensor, hidden_gates: th.Tensor, hidden: th.Tenso
     return (hidden - new) * update + new
 
 
+class SequenceLinear:
+    """y_t = x_t W^T + b (+ c_t) applied at every step t of a recurrence, with the weight gradient computed once per
+    sequence: sum_t g_t^T x_t as one GEMM over all T * B rows after the backward pass through time, as cuDNN's RNNs do,
+    instead of one small GEMM and one accumulation of a full-size gradient per step. The input gradients g_t W stay per
+    step (they are the recurrence). Under autocast the weight and bias are cast once to the autocast dtype (the GEMMs
+    then run in it; the summed weight gradient is rounded once to it, not per step).
+
+    Without gradients (``torch.no_grad`` or a weight that does not require them) it is the plain GEMM.
+
+    :param weight: W, (N, K), a parameter or a differentiable view of one (a slice of a GRU's W_ih)
+    :param bias: b, (N,), or None
+    :param dtype: the GEMMs' dtype (the autocast dtype, or the weight's)
+    :param deferred: sum the weight gradient once per sequence; ``False``: autograd's per-step weight gradients
+    """
+
+    def __init__(self, weight: th.Tensor, bias: th.Tensor | None, dtype: th.dtype, deferred: bool = True):
+        self.dtype = dtype
+        self.pairs: list[tuple[th.Tensor, th.Tensor]] = []  # (g_t, x_t), filled by the backward pass
+        requires_grad = weight.requires_grad or (bias is not None and bias.requires_grad)
+        self.tracked = deferred and th.is_grad_enabled() and requires_grad
+        # cast once (differentiably when not tracked: autograd then sums the per-step weight gradients itself)
+        self.weight = (weight.detach() if self.tracked else weight).to(dtype)
+        self.bias = None if bias is None else (bias.detach() if self.tracked else bias).to(dtype)
+        # a scalar whose backward node runs after every step's (it feeds all of them): the weight gradient is summed there
+        self.token = _SequenceWeightGradient.apply(self, weight, bias) if self.tracked else None
+
+    def __call__(self, inputs: th.Tensor, added: th.Tensor | None = None) -> th.Tensor:
+        """x_t W^T + b + c_t for one step: ``inputs`` x_t (B, K), ``added`` c_t (B, N) or None; (B, N) in ``dtype``."""
+        if not self.tracked:
+            return _affine(inputs.to(self.dtype), self.weight, self.bias, added)
+        return _SequenceLinearStep.apply(inputs, added, self.token, self)
+
+
+def _affine(inputs: th.Tensor, weight: th.Tensor, bias: th.Tensor | None, added: th.Tensor | None) -> th.Tensor:
+    if added is not None:
+        return th.addmm(added.to(inputs.dtype) if bias is None else added.to(inputs.dtype) + bias, inputs, weight.t())
+    return th.mm(inputs, weight.t()) if bias is None else th.addmm(bias, inputs, weight.t())
+
+
+class _SequenceLinearStep(th.autograd.Function):
+    @staticmethod
+    def forward(ctx: Any, inputs: th.Tensor, added: th.Tensor | None, token: th.Tensor, linear: SequenceLinear) -> th.Tensor:
+        cast = inputs.to(linear.dtype)
+        ctx.save_for_backward(cast)
+        ctx.linear, ctx.input_dtype = linear, inputs.dtype
+        ctx.added_dtype = None if added is None else added.dtype
+        return _affine(cast, linear.weight, linear.bias, added)
+
+    @staticmethod
+    def backward(ctx: Any, grad: th.Tensor) -> tuple[th.Tensor | None, ...]:
+        (cast,) = ctx.saved_tensors
+        linear: SequenceLinear = ctx.linear
+        grad = grad.to(linear.dtype)
+        linear.pairs.append((grad, cast))
+        grad_inputs = th.mm(grad, linear.weight).to(ctx.input_dtype) if ctx.needs_input_grad[0] else None
+        grad_added = grad.to(ctx.added_dtype) if ctx.added_dtype is not None and ctx.needs_input_grad[1] else None
+        return grad_inputs, grad_added, th.zeros((), dtype=th.float32, device=grad.device), None
+
+
+class _SequenceWeightGradient(th.autograd.Function):
+    @staticmethod
+    def forward(ctx: Any, linear: SequenceLinear, weight: th.Tensor, bias: th.Tensor | None) -> th.Tensor:
+        ctx.linear = linear
+        ctx.weight_dtype = weight.dtype
+        ctx.has_bias = bias is not None
+        return th.zeros((), dtype=th.float32, device=weight.device)
+
+    @staticmethod
+    def backward(ctx: Any, _: th.Tensor) -> tuple[th.Tensor | None, ...]:
+        linear: SequenceLinear = ctx.linear
+        if not linear.pairs:
+            return None, None, None
+        grads = th.cat([g for g, _ in linear.pairs])  # (T * B, N), steps in any order, rows matched with the inputs
+        inputs = th.cat([x for _, x in linear.pairs])  # (T * B, K)
+        linear.pairs = []  # (a retained graph's next backward pass fills them again)
+        grad_weight = th.mm(grads.t(), inputs).to(ctx.weight_dtype) if ctx.needs_input_grad[1] else None
+        grad_bias = grads.sum(0, dtype=th.float32).to(ctx.weight_dtype) if ctx.has_bias and ctx.needs_input_grad[2] else None
+        return None, grad_weight, grad_bias
+
+
 class SequenceEvaluation(NamedTuple):
     """Outputs of :meth:`LatentSwarmPolicy.evaluate_sequences`, time-major ``(T, B, ...)``."""
 
@@ -426,6 +506,7 @@ class LatentSwarmPolicy(BasePolicy):
         )
         self.action_dist = gaussian(self.action_dim)
         self._compiled_latent_step: Callable[..., StepOutput] | None = None
+        self._sequence_weight_gradients = True
         self.autocast = None
 
         if ortho_init:
@@ -834,13 +915,19 @@ class LatentSwarmPolicy(BasePolicy):
         memory_x = F.linear(local_prev, memory_cell.weight_ih[:, d_tau : d_tau + o_dim], memory_cell.bias_ih).unbind(0)
         if use_predictor:
             predictor_x = F.linear(observed, predictor_in.weight[:, d_rho:], predictor_in.bias).unbind(0)  # T x (B, hidden)
-        # the columns that read the recurrent state, each cast once to the autocast dtype (a slice is not in autocast's
-        # weight cache)
-        map_w = self._recurrent_weight(map_cell.weight_ih[:, o_dim + POSITION_DIMS :])  # reads m^mu_t
-        task_w = self._recurrent_weight(task_cell.weight_ih[:, o_dim + e_dim :])  # reads [mu_{t-1}; mbar_t]
-        memory_w = self._recurrent_weight(th.cat([memory_cell.weight_ih[:, :d_tau], memory_cell.weight_ih[:, d_tau + o_dim :]],
-                                                 dim=1))  # reads [tau_{t-1}; mbar_{t-1}]
-        predictor_w = self._recurrent_weight(predictor_in.weight[:, :d_rho])  # reads rho_t
+        # the GEMMs inside the recurrence: the columns of W_ih that read the recurrent state, and W_hh; each weight is
+        # cast once to the autocast dtype and its gradient summed once over the sequence (SequenceLinear)
+        dtype = th.get_autocast_dtype(self.device.type) if self.autocast is not None else map_cell.weight_ih.dtype
+        deferred = self._sequence_weight_gradients
+        map_in = SequenceLinear(map_cell.weight_ih[:, o_dim + POSITION_DIMS :], None, dtype, deferred)  # reads m^mu_t
+        task_in = SequenceLinear(task_cell.weight_ih[:, o_dim + e_dim :], None, dtype, deferred)  # reads [mu_{t-1}; mbar_t]
+        memory_columns = th.cat([memory_cell.weight_ih[:, :d_tau], memory_cell.weight_ih[:, d_tau + o_dim :]], dim=1)
+        memory_in = SequenceLinear(memory_columns, None, dtype, deferred)  # reads [tau_{t-1}; mbar_{t-1}]
+        map_hidden, task_hidden, memory_hidden = (SequenceLinear(cell.weight_hh, cell.bias_hh, dtype, deferred)
+                                                  for cell in (map_cell, task_cell, memory_cell))
+        if use_predictor:
+            predictor_memory = SequenceLinear(predictor_in.weight[:, :d_rho], None, dtype, deferred)  # reads rho_t
+            predictor_output = SequenceLinear(predictor_out.weight, predictor_out.bias, dtype, deferred)
 
         map_state, task_state, memory_state, message, held = state.map_state, state.task_state, state.memory_state, \
             state.prev_message, state.held_message
@@ -857,14 +944,13 @@ class LatentSwarmPolicy(BasePolicy):
             # Sec. III-A: rho_t = G_psi(rho_{t-1}, tau_{t-1}, o_{t-1}, mbar_{t-1})   (no_memory: rho zeroed before use)
             if self.no_memory:
                 memory_prev = th.zeros_like(memory_prev)
-            memory_gates = th.addmm(memory_x[t], th.cat([task_prev, message_prev], dim=-1), memory_w.t())
-            memory_state = gru_update(memory_gates, F.linear(memory_prev, memory_cell.weight_hh, memory_cell.bias_hh),
-                                      memory_prev)
+            memory_gates = memory_in(th.cat([task_prev, message_prev], dim=-1), memory_x[t])
+            memory_state = gru_update(memory_gates, memory_hidden(memory_prev), memory_prev)
             # Sec. III-C: mhat_t = P_zeta(rho_t, o_t, e_t);  mbar_t = m_t if N_t^i != {} else the substitute
             received_now = inputs.has_message[t].unsqueeze(-1)
             if use_predictor:
-                hidden = predictor_x[t] if self.no_memory else th.addmm(predictor_x[t], memory_state, predictor_w.t())
-                substitute = predictor_out(th.tanh(hidden))
+                hidden = predictor_x[t] if self.no_memory else predictor_memory(memory_state, predictor_x[t])
+                substitute = predictor_output(th.tanh(hidden))
                 outputs[3].append(substitute)
             else:
                 outputs[3].append(memory_state)
@@ -877,11 +963,10 @@ class LatentSwarmPolicy(BasePolicy):
             held = th.where(received_now, received_message, held_prev).float()
             message = th.where(received_now, received_message, substitute).float()
             # Sec. III-A, asymmetric update: mu_t = E_phi(mu_{t-1}, o_t, p_t, m^mu_t), m^mu_t = 0 when nothing arrived
-            map_gates = th.addmm(map_x[t], received_message[:, :d_mu], map_w.t())
-            map_state = gru_update(map_gates, F.linear(map_prev, map_cell.weight_hh, map_cell.bias_hh), map_prev)
+            map_state = gru_update(map_in(received_message[:, :d_mu], map_x[t]), map_hidden(map_prev), map_prev)
             # Sec. III-A: tau_t = F_theta(tau_{t-1}, o_t, e_t, mu_{t-1}, mbar_t)
-            task_gates = th.addmm(task_x[t], th.cat([map_prev, message], dim=-1), task_w.t())
-            task_state = gru_update(task_gates, F.linear(task_prev, task_cell.weight_hh, task_cell.bias_hh), task_prev)
+            task_gates = task_in(th.cat([map_prev, message], dim=-1), task_x[t])
+            task_state = gru_update(task_gates, task_hidden(task_prev), task_prev)
             for output, value in zip(outputs, (task_state, map_state, received_message)):
                 output.append(value)
             outputs[4].append(inputs.has_message[t])
@@ -891,9 +976,6 @@ class LatentSwarmPolicy(BasePolicy):
             predicted = self.message_predictor(th.cat([memory_used, observed], dim=-1))
         return task_states, map_states, received.float(), predicted.float(), has_message
 
-    def _recurrent_weight(self, weight: th.Tensor) -> th.Tensor:
-        """A weight of the per-step GEMMs, cast once to the autocast dtype under :attr:`autocast` (as it is)."""
-        return weight if self.autocast is None else weight.to(th.get_autocast_dtype(self.device.type))
 
     def _predict(self, observation: dict[str, th.Tensor], deterministic: bool = False) -> th.Tensor:  # type: ignore[override]
         raise RuntimeError("LatentSwarmPolicy is recurrent: call predict(obs, state, episode_start, deterministic)")

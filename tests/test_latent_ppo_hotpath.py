@@ -159,6 +159,13 @@ def test_chunked_replay_matches_the_per_step_replay(substitute, no_memory):
     assert reached > 10
 
 
+def test_the_chunked_replay_runs_under_autocast_and_the_rollouts_computation_in_float32_on_the_cpu():
+    policy = collected_model(n_epochs=1).policy
+    assert not policy.chunked_replay
+    policy.autocast = "bf16"
+    assert policy.chunked_replay
+
+
 @pytest.mark.parametrize("autocast", [None, "bf16"])
 def test_only_bf16_training_recomputes_the_old_log_probs(autocast, monkeypatch):
     model = collected_model(autocast=autocast, n_epochs=1)

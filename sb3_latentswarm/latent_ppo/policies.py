@@ -506,7 +506,6 @@ class LatentSwarmPolicy(BasePolicy):
         )
         self.action_dist = gaussian(self.action_dim)
         self._compiled_latent_step: Callable[..., StepOutput] | None = None
-        self._sequence_weight_gradients = True
         self.autocast = None
 
         if ortho_init:
@@ -861,9 +860,22 @@ class LatentSwarmPolicy(BasePolicy):
         autocast region)."""
         # what does not depend on the recurrence is prepared for all T steps at once
         inputs = self.step_inputs({key: obs[key] for key in ACTOR_OBS_KEYS}, episode_starts)
-        if self._compiled_latent_step is None:
+        if self.chunked_replay:
             return self._replay_latent_sequence(inputs, state)
-        return self._replay_latent_steps(inputs, state)  # the compiled step, one call per step
+        return self._replay_latent_steps(inputs, state)
+
+    @property
+    def chunked_replay(self) -> bool:
+        """Whether :meth:`evaluate_sequences` replays with the chunk-batched GEMMs of :meth:`_replay_latent_sequence`
+        (under :attr:`autocast`, and on devices other than the CPU) rather than one :meth:`recurrent_step` per step, the
+        rollout's own computation (float32 on the CPU, and after :meth:`compile_latent_step`).
+
+        Chosen by measurement (``docs/algorithm.md``, "The training replay"): on one CPU thread the batched replay makes
+        a bf16 ``paper`` minibatch 1.21x faster, but a float32 one is GEMM-bound (0.99x) and a float32 d = 64 one is
+        bound by per-op overhead in Python (0.86x), though it dispatches 22 % fewer aten ops, which is what a
+        host-bound GPU step pays for.
+        """
+        return self._compiled_latent_step is None and (self.autocast is not None or self.device.type != "cpu")
 
     def _replay_latent_steps(self, inputs: StepInputs, state: LatentState) -> tuple[th.Tensor, ...]:
         """The latent updates of a training sequence, one :meth:`recurrent_step` per step (the rollout's computation).
@@ -918,16 +930,15 @@ class LatentSwarmPolicy(BasePolicy):
         # the GEMMs inside the recurrence: the columns of W_ih that read the recurrent state, and W_hh; each weight is
         # cast once to the autocast dtype and its gradient summed once over the sequence (SequenceLinear)
         dtype = th.get_autocast_dtype(self.device.type) if self.autocast is not None else map_cell.weight_ih.dtype
-        deferred = self._sequence_weight_gradients
-        map_in = SequenceLinear(map_cell.weight_ih[:, o_dim + POSITION_DIMS :], None, dtype, deferred)  # reads m^mu_t
-        task_in = SequenceLinear(task_cell.weight_ih[:, o_dim + e_dim :], None, dtype, deferred)  # reads [mu_{t-1}; mbar_t]
+        map_in = SequenceLinear(map_cell.weight_ih[:, o_dim + POSITION_DIMS :], None, dtype)  # reads m^mu_t
+        task_in = SequenceLinear(task_cell.weight_ih[:, o_dim + e_dim :], None, dtype)  # reads [mu_{t-1}; mbar_t]
         memory_columns = th.cat([memory_cell.weight_ih[:, :d_tau], memory_cell.weight_ih[:, d_tau + o_dim :]], dim=1)
-        memory_in = SequenceLinear(memory_columns, None, dtype, deferred)  # reads [tau_{t-1}; mbar_{t-1}]
-        map_hidden, task_hidden, memory_hidden = (SequenceLinear(cell.weight_hh, cell.bias_hh, dtype, deferred)
+        memory_in = SequenceLinear(memory_columns, None, dtype)  # reads [tau_{t-1}; mbar_{t-1}]
+        map_hidden, task_hidden, memory_hidden = (SequenceLinear(cell.weight_hh, cell.bias_hh, dtype)
                                                   for cell in (map_cell, task_cell, memory_cell))
         if use_predictor:
-            predictor_memory = SequenceLinear(predictor_in.weight[:, :d_rho], None, dtype, deferred)  # reads rho_t
-            predictor_output = SequenceLinear(predictor_out.weight, predictor_out.bias, dtype, deferred)
+            predictor_memory = SequenceLinear(predictor_in.weight[:, :d_rho], None, dtype)  # reads rho_t
+            predictor_output = SequenceLinear(predictor_out.weight, predictor_out.bias, dtype)
 
         map_state, task_state, memory_state, message, held = state.map_state, state.task_state, state.memory_state, \
             state.prev_message, state.held_message

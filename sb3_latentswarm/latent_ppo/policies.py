@@ -912,7 +912,7 @@ class LatentSwarmPolicy(BasePolicy):
         batch = n_swarms * n_agents
         local_obs, proprio, keep = inputs.local_obs, inputs.proprio, inputs.keep  # (T, B, o_dim), (T, B, e_dim), (T, B, 1)
         map_cell, task_cell, memory_cell = self.map_encoder, self.task_encoder, self.memory_encoder
-        predictor_in, predictor_out = self.message_predictor[0], self.message_predictor[2]
+        predictor_in, predictor_out = cast(nn.Linear, self.message_predictor[0]), cast(nn.Linear, self.message_predictor[2])
         use_predictor = self.message_substitute == "predicted"
 
         # recurrence-free input projections, one GEMM each over T * B rows: the input columns of each W_ih (and of

@@ -229,7 +229,9 @@ class SequenceLinear:
     step (they are the recurrence). Under autocast the weight and bias are cast once to the autocast dtype (the GEMMs
     then run in it; the summed weight gradient is rounded once to it, not per step).
 
-    Without gradients (``torch.no_grad`` or a weight that does not require them) it is the plain GEMM.
+    Without gradients (``torch.no_grad`` or a weight that does not require them) it is the plain GEMM. A backward pass
+    must reach the weight (``loss.backward()``, or ``torch.autograd.grad`` with respect to the parameters); one that
+    asks only for other tensors' gradients would leave its per-step pairs behind for the next pass of a retained graph.
 
     :param weight: W, (N, K), a parameter or a differentiable view of one (a slice of a GRU's W_ih)
     :param bias: b, (N,), or None

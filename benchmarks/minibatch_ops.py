@@ -11,8 +11,13 @@ minibatches, so the once-per-update work of ``train`` is shared out):
   ``--sites`` lists where they happen. Reads inside ``torch.optim`` are not counted: Adam's step counters live on the
   host (``capturable=False``), reading them is no device sync;
 * ``CPU s``: per-thread CPU seconds (``time.thread_time``) of the training call, median over ``--repeats`` calls;
+* ``recomp``: of these, the recomputation of the old log-probabilities that ``train`` does first under autocast
+  (``LatentSwarmPPO.recompute_old_log_probs``, timed alone): once per update, i.e. shared by ``n_epochs`` epochs of
+  minibatches in training, where this benchmark runs one epoch;
 * ``replay``: the largest difference between the log-probabilities recomputed by ``evaluate_sequences`` for the
-  rollout's actions and those the rollout stored (PPO's ratio is exactly 1 before the first step when it is 0).
+  rollout's actions and the old log-probabilities ``train`` uses (PPO's ratio is exactly 1 before the first step when
+  it is 0): the rollout's own, or under autocast those ``LatentSwarmPPO.recompute_old_log_probs`` put in their place;
+  ``rollout``: the same against the rollout's own log-probabilities.
 
 Variants (``--autocast none bf16``; without ``--autocast`` the preset's own setting) are built in the same process
 and timed in alternation. ``--compare REV`` measures
@@ -28,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import inspect
 import json
 import math
 import os
@@ -105,14 +111,27 @@ def build(preset_name: str, minibatches: int, autocast: str | None = PRESET, see
     _, callback = model._setup_learn(model.n_steps * model.n_envs, callback=None)
     callback.on_training_start(locals(), globals())
     model.collect_rollouts(model.env, callback, model.rollout_buffer, n_rollout_steps=model.n_steps)
+    model.rollout_error = replay_error(model)
+    if recomputes(model):
+        model.recompute_old_log_probs()  # what train() does first under autocast
+    model.replay_error = replay_error(model)
+    model.train()  # warm-up: moves the rollout to tensors once, allocates the optimizer's state
+    return model
+
+
+def recomputes(model: LatentSwarmPPO) -> bool:
+    """Whether ``train()`` first recomputes the old log-probabilities (under autocast; older packages never do)."""
+    return getattr(model, "autocast", None) is not None and hasattr(model, "recompute_old_log_probs")
+
+
+def replay_error(model: LatentSwarmPPO) -> float:
+    """The largest |replayed - stored| log-probability over the rollout's minibatches (each shuffled by ``get``)."""
     with th.no_grad():
-        model.replay_error = max(
+        return max(
             float((model.policy.evaluate_sequences(b.observations, b.actions, b.latent_state, b.episode_starts).log_prob
                    - b.old_log_prob).abs().max())
             for b in model.rollout_buffer.get(model.batch_size)
         )
-    model.train()  # warm-up: moves the rollout to tensors once, allocates the optimizer's state
-    return model
 
 
 def measure(preset_name: str, autocasts: list[str | None], minibatches: int, repeats: int) -> list[dict[str, Any]]:
@@ -124,12 +143,16 @@ def measure(preset_name: str, autocasts: list[str | None], minibatches: int, rep
             model.train()
         with SyncCounter() as syncs:
             model.train()
-        rows[name] = {"ops": ops.ops, "syncs": syncs.sites, "cpu": []}
+        rows[name] = {"ops": ops.ops, "syncs": syncs.sites, "cpu": [], "recompute": []}
     for _ in range(repeats):
         for name, model in models.items():
             start = time.thread_time()
             model.train()
             rows[name]["cpu"].append(time.thread_time() - start)
+            if recomputes(model):  # train()'s first step, timed alone
+                start = time.thread_time()
+                model.recompute_old_log_probs()
+                rows[name]["recompute"].append(time.thread_time() - start)
     model = next(iter(models.values()))
     result: list[dict[str, Any]] = []
     for name, row in rows.items():
@@ -142,7 +165,9 @@ def measure(preset_name: str, autocasts: list[str | None], minibatches: int, rep
                 "ops": sum(row["ops"].values()) / minibatches,
                 "syncs": sum(row["syncs"].values()) / minibatches,
                 "cpu_s": statistics.median(row["cpu"]) / minibatches,
+                "recompute_s": statistics.median(row["recompute"]) / minibatches if row["recompute"] else 0.0,
                 "replay": models[name].replay_error,
+                "rollout": models[name].rollout_error,
                 "sync_sites": dict(row["syncs"]),
                 "top_ops": dict(row["ops"].most_common(8)),
             }
@@ -151,12 +176,14 @@ def measure(preset_name: str, autocasts: list[str | None], minibatches: int, rep
 
 
 def print_table(rows: list[dict[str, Any]], label: str = "", sites: bool = False) -> None:
-    header = ("code", 8), ("preset", 13), ("d", 4), ("batch", 6), ("autocast", 8), ("aten ops", 9), ("syncs", 6),
-    print(" ".join(f"{name:>{width}}" for name, width in (*header, ("CPU s", 7), ("replay", 8))))
+    header = ("code", 8), ("preset", 13), ("d", 4), ("batch", 6), ("autocast", 8), ("aten ops", 9), ("syncs", 6), ("CPU s", 7)
+    print(" ".join(f"{name:>{width}}" for name, width in (*header, ("recomp", 7), ("replay", 8), ("rollout", 8))))
     for row in rows:
         print(
             f"{label or row.get('code', 'new'):>8} {row['preset']:>13} {row['latent_dim']:>4} {row['batch_size']:>6} "
-            f"{row['autocast']:>8} {row['ops']:>9.0f} {row['syncs']:>6.1f} {row['cpu_s']:>7.3f} {row['replay']:>8.1e}"
+            f"{row['autocast']:>8} {row['ops']:>9.0f} {row['syncs']:>6.1f} {row['cpu_s']:>7.3f}"
+            f" {row.get('recompute_s', 0.0):>7.3f} {row['replay']:>8.1e} "
+            f"{row.get('rollout', math.nan):>8.1e}"
         )
         if sites:
             for site, count in sorted(row["sync_sites"].items(), key=lambda item: -item[1]):
@@ -179,11 +206,17 @@ def compare(args: argparse.Namespace) -> None:
                 results[code].append(json.loads(out.strip().splitlines()[-1])[0])
     rows = []
     for code, runs in results.items():
-        row = dict(runs[0], code=code, cpu_s=statistics.median(r["cpu_s"] for r in runs))
+        row = dict(runs[0], code=code, cpu_s=statistics.median(r["cpu_s"] for r in runs),
+                   recompute_s=statistics.median(r.get("recompute_s", 0.0) for r in runs))
         rows.append(row)
     print_table(rows, sites=args.sites)
     old, new = rows[0]["cpu_s"], rows[1]["cpu_s"]
     print(f"old {args.compare} / new CPU s per minibatch: {old / new:.2f}x ({args.rounds} alternating rounds)")
+    if rows[0]["recompute_s"] or rows[1]["recompute_s"]:  # once per update: shared by the preset's epochs in training
+        default_epochs = inspect.signature(LatentSwarmPPO.__init__).parameters["n_epochs"].default
+        n_epochs = get_preset(args.preset).algo_kwargs.get("n_epochs", default_epochs)
+        old_epoch, new_epoch = (row["cpu_s"] - row["recompute_s"] * (1 - 1 / n_epochs) for row in rows)
+        print(f"with the recomputation shared by the preset's {n_epochs} epochs: {old_epoch / new_epoch:.2f}x")
 
 
 def main() -> None:

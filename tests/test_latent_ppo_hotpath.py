@@ -14,7 +14,7 @@ from torch.overrides import TorchFunctionMode
 from sb3_latentswarm import LatentSwarmPPO, SwarmConfig
 from sb3_latentswarm.common.value_norm import ValueNorm
 from sb3_latentswarm.envs import make_vec_env
-from sb3_latentswarm.latent_ppo.policies import gru_cell
+from sb3_latentswarm.latent_ppo.policies import SequenceLinear, gru_cell
 
 SMALL = SwarmConfig(n_agents=3, grid_width=10, grid_height=10, max_steps=7, num_obstacles=5, p_fail=0.5)
 TINY_POLICY = dict(latent_dim=8, predictor_hidden=16, decoder_hidden=16, critic_hidden=16, actor_hidden=16)
@@ -72,14 +72,122 @@ def test_gru_cell_is_torch_grucell():
         th.testing.assert_close(g_got, g_expected, atol=1e-6, rtol=0)
 
 
+def recurrence(weight, bias, added, hidden, deferred, dtype=th.float32):
+    """h_{t+1} = tanh(h_t W^T + b + c_t) over T steps, through SequenceLinear; the stacked states, float32."""
+    linear = SequenceLinear(weight, bias, dtype, deferred)
+    states = []
+    for added_t in added.unbind(0):
+        hidden = th.tanh(linear(hidden, added_t).float())
+        states.append(hidden)
+    return th.stack(states)
+
+
+@pytest.mark.parametrize("dtype", [th.float32, th.bfloat16])
+def test_sequence_linear_sums_the_weight_gradient_once_per_sequence(dtype):
+    generator = th.Generator().manual_seed(0)
+    weight = (th.randn(16, 16, generator=generator) / 4).requires_grad_()
+    bias = th.randn(16, generator=generator).requires_grad_()
+    added = th.randn(7, 5, 16, generator=generator).requires_grad_()  # (T, B, N)
+    hidden = th.randn(5, 16, generator=generator).requires_grad_()
+    readout = th.randn(7, 5, 16, generator=generator)
+    leaves = [weight, bias, added, hidden]
+    results = {}
+    for deferred in (True, False):
+        states = recurrence(weight, bias, added, hidden, deferred, dtype)
+        loss = (states * readout).sum()
+        first = th.autograd.grad(loss, leaves, retain_graph=True)
+        second = th.autograd.grad(loss, leaves)  # a retained graph's second pass: the per-sequence sums start afresh
+        for g_first, g_second in zip(first, second):
+            assert th.equal(g_first, g_second)
+        results[deferred] = states, first
+    (states, grads), (expected_states, expected_grads) = results[True], results[False]
+    assert th.equal(states, expected_states)  # the same forward GEMMs
+    for got, expected in zip(grads, expected_grads):
+        if dtype == th.float32:
+            th.testing.assert_close(got, expected, atol=1e-5 * float(expected.abs().max()), rtol=0)
+        else:  # bf16: the per-step gradients are summed in bf16 by autograd, once in a float32-accumulating GEMM here
+            cosine = th.nn.functional.cosine_similarity(got.flatten().double(), expected.flatten().double(), dim=0)
+            assert cosine > 0.999
+    with th.no_grad():
+        assert th.equal(recurrence(weight, bias, added, hidden, True, dtype), expected_states)
+
+
 @pytest.mark.parametrize("autocast", [None, "bf16"])
 def test_replayed_log_probs_match_the_rollout_under_the_same_autocast(autocast):
     model = collected_model(autocast=autocast)
     assert model.policy.autocast == autocast
+    if autocast is not None:  # bf16 rounds the rollout's steps and the replay's chunks differently: train() recomputes
+        assert 1e-5 < replay_error(model) < 1e-2
+        model.recompute_old_log_probs()
     assert replay_error(model) < 1e-5
     if autocast is not None:  # the rollout did run in bf16: a float32 replay of the same data differs
         model.policy.autocast = None
         assert replay_error(model) > 1e-5
+
+
+def sequence_inputs(model):
+    batch = next(model.rollout_buffer.get(model.batch_size))
+    obs = {key: batch.observations[key] for key in ("local_obs", "proprio", "link_row")}
+    return model.policy.step_inputs(obs, batch.episode_starts), batch.latent_state
+
+
+@pytest.mark.parametrize("substitute", ["predicted", "zero", "hold_last", "own_message"])
+@pytest.mark.parametrize("no_memory", [False, True])
+def test_chunked_replay_matches_the_per_step_replay(substitute, no_memory):
+    model = collected_model(policy_kwargs={**TINY_POLICY, "message_substitute": substitute, "no_memory": no_memory})
+    policy = model.policy
+    inputs, initial_state = sequence_inputs(model)
+    assert (inputs.keep[1:] == 0).any() and not inputs.has_message.all()  # episode starts and dropouts inside chunks
+    chunked = policy._replay_latent_sequence(inputs, initial_state)  # the recurrence-free GEMMs over the whole chunk
+    per_step = policy._replay_latent_steps(inputs, initial_state)  # recurrent_step, as in rollouts
+    parameters = list(policy.parameters())
+    gradients = []
+    for outputs in (chunked, per_step):
+        weighted = sum((output * th.randn(output.shape, generator=th.Generator().manual_seed(i))).sum()
+                       for i, output in enumerate(outputs[:4]))
+        gradients.append(th.autograd.grad(weighted, parameters, allow_unused=True))
+    assert th.equal(chunked[4], per_step[4])
+    for got, expected in zip(chunked[:4], per_step[:4]):
+        assert got.shape == expected.shape
+        th.testing.assert_close(got, expected, atol=1e-6, rtol=0)
+    reached = 0
+    for got, expected in zip(*gradients):
+        assert (got is None) == (expected is None)
+        if expected is not None:
+            reached += 1
+            th.testing.assert_close(got, expected, atol=1e-5 * float(expected.abs().max()), rtol=0)
+    assert reached > 10
+
+
+def test_the_chunked_replay_runs_under_autocast_and_the_rollouts_computation_in_float32_on_the_cpu():
+    policy = collected_model(n_epochs=1).policy
+    assert not policy.chunked_replay
+    policy.autocast = "bf16"
+    assert policy.chunked_replay
+
+
+@pytest.mark.parametrize("autocast", [None, "bf16"])
+def test_only_bf16_training_recomputes_the_old_log_probs(autocast, monkeypatch):
+    model = collected_model(autocast=autocast, n_epochs=1)
+    calls = []
+    recompute = LatentSwarmPPO.recompute_old_log_probs
+    monkeypatch.setattr(LatentSwarmPPO, "recompute_old_log_probs", lambda self: (calls.append(self), recompute(self)))
+    rollout = model.rollout_buffer.log_probs.copy()
+    model.train()
+    assert calls == ([] if autocast is None else [model])
+    trained_on = model.rollout_buffer._torch_cache["log_probs"].reshape(rollout.shape).numpy()
+    np.testing.assert_array_equal(model.rollout_buffer.log_probs, rollout)  # the rollout's own record stays
+    if autocast is None:
+        np.testing.assert_array_equal(trained_on, rollout)
+    else:
+        assert 1e-5 < np.abs(trained_on - rollout).max() < 1e-2
+
+
+def test_recomputed_bf16_log_probs_are_reproduced_by_any_minibatch_of_the_rollout():
+    model = collected_model(autocast="bf16", batch_size=45)  # 8 sequences of 15 agent-steps: minibatches of 3, 3, 2
+    model.recompute_old_log_probs()
+    for _ in range(3):  # get() shuffles the sequences into other minibatches each time
+        assert replay_error(model) < 1e-5
 
 
 def test_replayed_log_probs_match_the_rollout_at_the_paper_latent_size():

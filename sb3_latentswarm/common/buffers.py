@@ -16,7 +16,7 @@ instead of once per slot; the minibatches hand them out per agent-step as before
 
 from __future__ import annotations
 
-from collections.abc import Generator
+from collections.abc import Callable, Generator
 
 import numpy as np
 import torch as th
@@ -137,14 +137,43 @@ class SwarmRolloutBuffer(DictRolloutBuffer):
             ``n_agents * chunk_length`` agent-steps. ``None`` gives the whole rollout in one minibatch.
         """
         assert self.full, "The rollout buffer is not full"
+        order = th.as_tensor(np.random.permutation(self.n_chunks * self.n_swarms), device=self.device)
+        for _, samples in self._minibatches(batch_size, order):
+            yield samples
+
+    def replace_log_probs(
+        self, batch_size: int | None, log_prob: Callable[[SwarmRolloutBufferSamples], th.Tensor]
+    ) -> None:
+        """Replace the log-probabilities that :meth:`get` hands out as ``old_log_prob`` by ``log_prob(minibatch)``,
+        evaluated on minibatches of the same size as :meth:`get`'s (the numpy ``log_probs`` keep the rollout's).
+
+        :param batch_size: as in :meth:`get`
+        :param log_prob: the new log-probabilities of a minibatch, time-major (chunk_length, n_seq * n_agents)
+        """
+        if self._torch_cache is None:
+            self._torch_cache = self._as_chunked_tensors()
+        cache = self._torch_cache
+        # a copy: on the CPU the cached tensor shares its memory with the numpy array
+        replaced = cache["log_probs"].clone()
+        for sequence_inds, samples in self._minibatches(batch_size, th.arange(self.n_chunks * self.n_swarms)):
+            chunk_idx, swarm_idx = th.div(sequence_inds, self.n_swarms, rounding_mode="floor"), sequence_inds % self.n_swarms
+            # (L, n_seq * n_agents) -> (n_seq, L, n_agents), the layout of cache[chunk_idx, :, swarm_idx]
+            new = log_prob(samples).reshape(self.chunk_length, len(sequence_inds), self.n_agents).transpose(0, 1)
+            replaced[chunk_idx, :, swarm_idx] = new.to(replaced.dtype)
+        cache["log_probs"] = replaced
+
+    def _minibatches(
+        self, batch_size: int | None, order: th.Tensor
+    ) -> Generator[tuple[th.Tensor, SwarmRolloutBufferSamples], None, None]:
+        """(sequence indices, samples) of consecutive minibatches of ``order`` (sequence indices, chunk-major)."""
         if self._torch_cache is None:
             self._torch_cache = self._as_chunked_tensors()
         n_sequences = self.n_chunks * self.n_swarms
         per_sequence = self.n_agents * self.chunk_length
         sequences_per_batch = n_sequences if batch_size is None else max(1, batch_size // per_sequence)
-        order = th.as_tensor(np.random.permutation(n_sequences), device=self.device)
         for start in range(0, n_sequences, sequences_per_batch):
-            yield self._get_samples(order[start : start + sequences_per_batch])
+            inds = order[start : start + sequences_per_batch].to(self.device)
+            yield inds, self._get_samples(inds)
 
     def _get_samples(self, sequence_inds: th.Tensor, env=None) -> SwarmRolloutBufferSamples:  # type: ignore[override]
         cache = self._torch_cache

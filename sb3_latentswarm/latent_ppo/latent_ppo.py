@@ -270,7 +270,10 @@ class LatentSwarmPPO(RecurrentPPO):
         map decoder, critic trunk) runs under bfloat16 autocast, in rollouts, training and ``predict`` alike; the latent
         state, the action heads, log-probabilities, the PPO ratio, ValueNorm and the losses stay float32 (see
         :attr:`LatentSwarmPolicy.autocast`). Faster only for large latent sizes on CPUs with bf16 matrix units
-        (``benchmarks/minibatch_ops.py`` measures it)
+        (``benchmarks/minibatch_ops.py`` measures it). bf16 GEMMs round differently for different batch shapes, so the
+        rollout's log-probabilities (one step of all slots) and the training replay's (chunks of minibatch rows) differ
+        by about 1e-4; with ``"bf16"`` each update therefore first recomputes the old log-probabilities with the training
+        forward pass itself (:meth:`recompute_old_log_probs`), and the PPO ratio compares like with like
     :param target_kl: optional KL early stopping
     :param stats_window_size: episodes averaged in the rollout logs
     :param tensorboard_log: TensorBoard log folder
@@ -770,6 +773,23 @@ class LatentSwarmPPO(RecurrentPPO):
         raise NonFiniteLossError(f"the weighted sum of the loss terms overflows in update {update} (epoch {epoch + 1}, "
                                  f"minibatch {minibatch}); lower the loss weights or check the rewards")
 
+    def recompute_old_log_probs(self) -> None:
+        """Replace the rollout's log-probabilities log pi_old(a_t) in the buffer by those of the training forward pass
+        (:meth:`LatentSwarmPolicy.sequence_log_prob`, no gradient) with the same parameters, on minibatches of
+        ``batch_size``: under bf16 autocast the rollout's step-by-step forward rounds differently (about 1e-4 in log pi),
+        and the PPO ratio of the first gradient step must be exactly 1. A bf16 GEMM's rows depend on the number of rows
+        but not on which other rows share the minibatch, so the replay of any minibatch of the same size reproduces
+        these values. Called by :meth:`train` when ``autocast`` is set; the float32 replay already matches the rollout
+        (to about 1e-6).
+        """
+        policy = self.policy
+
+        def replayed(batch: Any) -> th.Tensor:
+            return policy.sequence_log_prob(batch.observations, batch.actions, batch.latent_state, batch.episode_starts)
+
+        with th.no_grad():
+            self.rollout_buffer.replace_log_probs(self.batch_size, replayed)
+
     def train(self) -> None:
         """One update on the rollout: the joint loss of Sec. III-E, one gradient step per minibatch."""
         self.policy.set_training_mode(True)
@@ -779,6 +799,8 @@ class LatentSwarmPPO(RecurrentPPO):
         if self.policy.value_normalizer is not None:
             self.policy.value_normalizer.update(th.as_tensor(self.rollout_buffer.returns, device=self.device))
 
+        if self.policy.autocast is not None:
+            self.recompute_old_log_probs()
         weights = self._loss_weights()
         update = self.num_timesteps // (self.n_steps * self.n_envs)  # this update's number, counting rollouts from 1
         parameter_groups = self._parameter_groups()

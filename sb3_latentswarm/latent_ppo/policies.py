@@ -203,12 +203,105 @@ def gru_cell(inputs: th.Tensor, hidden: th.Tensor, cell: nn.GRUCell) -> th.Tenso
     :param cell: the ``GRUCell`` whose ``weight_ih``, ``bias_ih``, ``weight_hh``, ``bias_hh`` are used
     :return: h', (B, hidden_size), float32 (the dtype of ``hidden``)
     """
-    input_r, input_z, input_n = F.linear(inputs, cell.weight_ih, cell.bias_ih).float().chunk(3, dim=-1)
-    hidden_r, hidden_z, hidden_n = F.linear(hidden, cell.weight_hh, cell.bias_hh).float().chunk(3, dim=-1)
+    return gru_update(F.linear(inputs, cell.weight_ih, cell.bias_ih), F.linear(hidden, cell.weight_hh, cell.bias_hh), hidden)
+
+
+def gru_update(input_gates: th.Tensor, hidden_gates: th.Tensor, hidden: th.Tensor) -> th.Tensor:
+    """The gates and new state of ``torch.nn.GRUCell`` from its two projections (:func:`gru_cell`), in float32.
+
+    :param input_gates: W_ih x + b_ih, (B, 3 hidden_size), gates in the order r, z, n (float32 or bfloat16)
+    :param hidden_gates: W_hh h + b_hh, (B, 3 hidden_size)
+    :param hidden: h, (B, hidden_size), float32
+    :return: h', (B, hidden_size), float32
+    """
+    input_r, input_z, input_n = input_gates.float().chunk(3, dim=-1)
+    hidden_r, hidden_z, hidden_n = hidden_gates.float().chunk(3, dim=-1)
     reset = th.sigmoid(input_r + hidden_r)
     update = th.sigmoid(input_z + hidden_z)
     new = th.tanh(input_n + reset * hidden_n)
     return (hidden - new) * update + new
+
+
+class SequenceLinear:
+    """y_t = x_t W^T + b (+ c_t) applied at every step t of a recurrence, with the weight gradient computed once per
+    sequence: sum_t g_t^T x_t as one GEMM over all T * B rows after the backward pass through time, as cuDNN's RNNs do,
+    instead of one small GEMM and one accumulation of a full-size gradient per step. The input gradients g_t W stay per
+    step (they are the recurrence). Under autocast the weight and bias are cast once to the autocast dtype (the GEMMs
+    then run in it; the summed weight gradient is rounded once to it, not per step).
+
+    Without gradients (``torch.no_grad`` or a weight that does not require them) it is the plain GEMM. A backward pass
+    must reach the weight (``loss.backward()``, or ``torch.autograd.grad`` with respect to the parameters); one that
+    asks only for other tensors' gradients would leave its per-step pairs behind for the next pass of a retained graph.
+
+    :param weight: W, (N, K), a parameter or a differentiable view of one (a slice of a GRU's W_ih)
+    :param bias: b, (N,), or None
+    :param dtype: the GEMMs' dtype (the autocast dtype, or the weight's)
+    :param deferred: sum the weight gradient once per sequence; ``False``: autograd's per-step weight gradients
+    """
+
+    def __init__(self, weight: th.Tensor, bias: th.Tensor | None, dtype: th.dtype, deferred: bool = True):
+        self.dtype = dtype
+        self.pairs: list[tuple[th.Tensor, th.Tensor]] = []  # (g_t, x_t), filled by the backward pass
+        requires_grad = weight.requires_grad or (bias is not None and bias.requires_grad)
+        self.tracked = deferred and th.is_grad_enabled() and requires_grad
+        # cast once (differentiably when not tracked: autograd then sums the per-step weight gradients itself)
+        self.weight = (weight.detach() if self.tracked else weight).to(dtype)
+        self.bias = None if bias is None else (bias.detach() if self.tracked else bias).to(dtype)
+        # a scalar whose backward node runs after every step's (it feeds all of them): the weight gradient is summed there
+        self.token = _SequenceWeightGradient.apply(self, weight, bias) if self.tracked else None
+
+    def __call__(self, inputs: th.Tensor, added: th.Tensor | None = None) -> th.Tensor:
+        """x_t W^T + b + c_t for one step: ``inputs`` x_t (B, K), ``added`` c_t (B, N) or None; (B, N) in ``dtype``."""
+        if not self.tracked:
+            return _affine(inputs.to(self.dtype), self.weight, self.bias, added)
+        return _SequenceLinearStep.apply(inputs, added, self.token, self)
+
+
+def _affine(inputs: th.Tensor, weight: th.Tensor, bias: th.Tensor | None, added: th.Tensor | None) -> th.Tensor:
+    if added is not None:
+        return th.addmm(added.to(inputs.dtype) if bias is None else added.to(inputs.dtype) + bias, inputs, weight.t())
+    return th.mm(inputs, weight.t()) if bias is None else th.addmm(bias, inputs, weight.t())
+
+
+class _SequenceLinearStep(th.autograd.Function):
+    @staticmethod
+    def forward(ctx: Any, inputs: th.Tensor, added: th.Tensor | None, token: th.Tensor, linear: SequenceLinear) -> th.Tensor:
+        cast = inputs.to(linear.dtype)
+        ctx.save_for_backward(cast)
+        ctx.linear, ctx.input_dtype = linear, inputs.dtype
+        ctx.added_dtype = None if added is None else added.dtype
+        return _affine(cast, linear.weight, linear.bias, added)
+
+    @staticmethod
+    def backward(ctx: Any, grad: th.Tensor) -> tuple[th.Tensor | None, ...]:
+        (cast,) = ctx.saved_tensors
+        linear: SequenceLinear = ctx.linear
+        grad = grad.to(linear.dtype)
+        linear.pairs.append((grad, cast))
+        grad_inputs = th.mm(grad, linear.weight).to(ctx.input_dtype) if ctx.needs_input_grad[0] else None
+        grad_added = grad.to(ctx.added_dtype) if ctx.added_dtype is not None and ctx.needs_input_grad[1] else None
+        return grad_inputs, grad_added, th.zeros((), dtype=th.float32, device=grad.device), None
+
+
+class _SequenceWeightGradient(th.autograd.Function):
+    @staticmethod
+    def forward(ctx: Any, linear: SequenceLinear, weight: th.Tensor, bias: th.Tensor | None) -> th.Tensor:
+        ctx.linear = linear
+        ctx.weight_dtype = weight.dtype
+        ctx.has_bias = bias is not None
+        return th.zeros((), dtype=th.float32, device=weight.device)
+
+    @staticmethod
+    def backward(ctx: Any, _: th.Tensor) -> tuple[th.Tensor | None, ...]:
+        linear: SequenceLinear = ctx.linear
+        if not linear.pairs:
+            return None, None, None
+        grads = th.cat([g for g, _ in linear.pairs])  # (T * B, N), steps in any order, rows matched with the inputs
+        inputs = th.cat([x for _, x in linear.pairs])  # (T * B, K)
+        linear.pairs = []  # (a retained graph's next backward pass fills them again)
+        grad_weight = th.mm(grads.t(), inputs).to(ctx.weight_dtype) if ctx.needs_input_grad[1] else None
+        grad_bias = grads.sum(0, dtype=th.float32).to(ctx.weight_dtype) if ctx.has_bias and ctx.needs_input_grad[2] else None
+        return None, grad_weight, grad_bias
 
 
 class SequenceEvaluation(NamedTuple):
@@ -732,26 +825,13 @@ class LatentSwarmPolicy(BasePolicy):
         :param episode_starts: (T, B)
         """
         n_steps = actions.shape[0]
-        state = initial_state
-        task_states, map_states, received, predicted, has_message = [], [], [], [], []
-        # what does not depend on the recurrence is prepared for all T steps at once
-        inputs = self.step_inputs({key: obs[key] for key in ACTOR_OBS_KEYS}, episode_starts)
         # one autocast region for the sequence (with autocast="bf16"): each weight is cast to bf16 once, not per step
         with self.latent_autocast():
-            # the recurrence is the only loop: over time; every step handles all agents of all swarms at once
-            for t in range(n_steps):
-                step = self.recurrent_step(StepInputs._make(field[t] for field in inputs), state)
-                state = step.state
-                task_states.append(state.task_state)
-                map_states.append(state.map_state)
-                received.append(step.received_message)
-                predicted.append(step.predicted_message)
-                has_message.append(step.has_message)
+            task_state, map_state, received, predicted, has_message = self._replay_latent(obs, initial_state, episode_starts)
             critic_obs = {key: obs[key].flatten(0, 1) for key in STATE_OBS_KEYS}
             values = self.critic_output(critic_obs).view(n_steps, -1)
-            map_reconstruction = self.decode_map(th.stack(map_states))
+            map_reconstruction = self.decode_map(map_state)
         # the action heads and log-probabilities in float32
-        task_state = th.stack(task_states)  # (T, B, d_tau)
         distribution = self.action_distribution(task_state.flatten(0, 1))
         flat_actions = actions.flatten(0, 1)
         log_prob = distribution.log_prob(flat_actions).view(n_steps, -1)
@@ -761,10 +841,154 @@ class LatentSwarmPolicy(BasePolicy):
             log_prob=log_prob,
             entropy=entropy,
             map_reconstruction=map_reconstruction,
-            received_message=th.stack(received),
-            predicted_message=th.stack(predicted),
-            has_message=th.stack(has_message),
+            received_message=received,
+            predicted_message=predicted,
+            has_message=has_message,
         )
+
+    def sequence_log_prob(
+        self, obs: dict[str, th.Tensor], actions: th.Tensor, initial_state: LatentState, episode_starts: th.Tensor
+    ) -> th.Tensor:
+        """log pi(a_t | tau_t) of time-major sequences, (T, B): the ``log_prob`` of :meth:`evaluate_sequences` (the same
+        numbers), without the critic, the map decoder and the entropy (which samples for the squashed Gaussian)."""
+        with self.latent_autocast():
+            task_state = self._replay_latent(obs, initial_state, episode_starts)[0]
+        return self.action_distribution(task_state.flatten(0, 1)).log_prob(actions.flatten(0, 1)).view(actions.shape[0], -1)
+
+    def _replay_latent(
+        self, obs: dict[str, th.Tensor], state: LatentState, episode_starts: th.Tensor
+    ) -> tuple[th.Tensor, ...]:
+        """tau_t, mu_t, m_t, mhat_t (T, B, dim each) and has_message (T, B) of time-major sequences (in the caller's
+        autocast region)."""
+        # what does not depend on the recurrence is prepared for all T steps at once
+        inputs = self.step_inputs({key: obs[key] for key in ACTOR_OBS_KEYS}, episode_starts)
+        if self.chunked_replay:
+            return self._replay_latent_sequence(inputs, state)
+        return self._replay_latent_steps(inputs, state)
+
+    @property
+    def chunked_replay(self) -> bool:
+        """Whether :meth:`evaluate_sequences` replays with the chunk-batched GEMMs of :meth:`_replay_latent_sequence`
+        (under :attr:`autocast`, and on devices other than the CPU) rather than one :meth:`recurrent_step` per step, the
+        rollout's own computation (float32 on the CPU, and after :meth:`compile_latent_step`).
+
+        Chosen by measurement (``docs/algorithm.md``, "The training replay"): on one CPU thread the batched replay makes
+        a bf16 ``paper`` minibatch 1.21x faster, but a float32 one is GEMM-bound (0.99x) and a float32 d = 64 one is
+        bound by per-op overhead in Python (0.86x), though it dispatches 22 % fewer aten ops, which is what a
+        host-bound GPU step pays for.
+        """
+        return self._compiled_latent_step is None and (self.autocast is not None or self.device.type != "cpu")
+
+    def _replay_latent_steps(self, inputs: StepInputs, state: LatentState) -> tuple[th.Tensor, ...]:
+        """The latent updates of a training sequence, one :meth:`recurrent_step` per step (the rollout's computation).
+
+        :return: tau_t, mu_t, m_t, mhat_t (T, B, dim each), has_message (T, B)
+        """
+        outputs: list[list[th.Tensor]] = [[], [], [], [], []]
+        for t in range(inputs.keep.shape[0]):
+            step = self.recurrent_step(StepInputs._make(field[t] for field in inputs), state)
+            state = step.state
+            for output, value in zip(outputs, (state.task_state, state.map_state, step.received_message,
+                                               step.predicted_message, step.has_message)):
+                output.append(value)
+        return tuple(th.stack(output) for output in outputs)
+
+    def _replay_latent_sequence(self, inputs: StepInputs, state: LatentState) -> tuple[th.Tensor, ...]:
+        """The latent updates of a training sequence with the recurrence-free arithmetic batched over the chunk.
+
+        The same equations as :meth:`recurrent_step` (``nn.GRUCell``'s r, z, n gates with b_ih and b_hh), arranged for
+        time-major sequences: each GRU's input projection W_ih x is split by input columns into the part that reads the
+        observations (o_t, e_t, p_t and the previous step's o_{t-1}), computed as one GEMM over all T * B rows before
+        the loop, and the part that reads the recurrent state (messages, mu_{t-1}, tau_{t-1}, mbar_{t-1}), computed
+        per step; likewise the first layer of the predictor P_zeta. When the substitute is not the predictor, mhat_t
+        does not feed the recurrence and is computed after the loop for all rows at once. The sums of the split
+        projections round differently from the rollout's one GEMM: float32 results agree with
+        :meth:`_replay_latent_steps` to about 1e-6.
+
+        :param inputs: :meth:`step_inputs` of the sequence, leading dims (T, B)
+        :param state: the state carried into the first step, (B, ...) per field
+        :return: tau_t, mu_t, m_t, mhat_t (T, B, dim each), has_message (T, B)
+        """
+        o_dim, e_dim, d_mu, d_tau, d_rho = self.local_obs_dim, self.proprio_dim, self.map_dim, self.task_dim, self.memory_dim
+        n_steps, (n_swarms, n_agents) = inputs.keep.shape[0], inputs.link_mask.shape[1:3]
+        batch = n_swarms * n_agents
+        local_obs, proprio, keep = inputs.local_obs, inputs.proprio, inputs.keep  # (T, B, o_dim), (T, B, e_dim), (T, B, 1)
+        map_cell, task_cell, memory_cell = self.map_encoder, self.task_encoder, self.memory_encoder
+        predictor_in, predictor_out = cast(nn.Linear, self.message_predictor[0]), cast(nn.Linear, self.message_predictor[2])
+        use_predictor = self.message_substitute == "predicted"
+
+        # recurrence-free input projections, one GEMM each over T * B rows: the input columns of each W_ih (and of
+        # P_zeta's first layer) that read o_t, p_t, e_t, o_{t-1}; the bias b_ih rides on them. Split into per-step views
+        # by unbind, whose backward stacks the T gradients once (indexing [t] would zero-fill a (T, B, .) gradient per step)
+        observed = th.cat([local_obs, proprio], dim=-1)  # (T, B, o_dim + e_dim)
+        map_x = F.linear(th.cat([local_obs, inputs.position], dim=-1), map_cell.weight_ih[:, : o_dim + POSITION_DIMS],
+                         map_cell.bias_ih).unbind(0)  # T x (B, 3 d_mu)
+        task_x = F.linear(observed, task_cell.weight_ih[:, : o_dim + e_dim], task_cell.bias_ih).unbind(0)  # T x (B, 3 d_tau)
+        # o_{t-1}: the stored one before the first step, zeroed at episode starts as the carried state is
+        local_prev = th.cat([state.prev_local_obs.unsqueeze(0), local_obs[:-1]]) * keep
+        memory_x = F.linear(local_prev, memory_cell.weight_ih[:, d_tau : d_tau + o_dim], memory_cell.bias_ih).unbind(0)
+        if use_predictor:
+            predictor_x = F.linear(observed, predictor_in.weight[:, d_rho:], predictor_in.bias).unbind(0)  # T x (B, hidden)
+        # the GEMMs inside the recurrence: the columns of W_ih that read the recurrent state, and W_hh; each weight is
+        # cast once to the autocast dtype and its gradient summed once over the sequence (SequenceLinear)
+        dtype = th.get_autocast_dtype(self.device.type) if self.autocast is not None else map_cell.weight_ih.dtype
+        map_in = SequenceLinear(map_cell.weight_ih[:, o_dim + POSITION_DIMS :], None, dtype)  # reads m^mu_t
+        task_in = SequenceLinear(task_cell.weight_ih[:, o_dim + e_dim :], None, dtype)  # reads [mu_{t-1}; mbar_t]
+        memory_columns = th.cat([memory_cell.weight_ih[:, :d_tau], memory_cell.weight_ih[:, d_tau + o_dim :]], dim=1)
+        memory_in = SequenceLinear(memory_columns, None, dtype)  # reads [tau_{t-1}; mbar_{t-1}]
+        map_hidden, task_hidden, memory_hidden = (SequenceLinear(cell.weight_hh, cell.bias_hh, dtype)
+                                                  for cell in (map_cell, task_cell, memory_cell))
+        if use_predictor:
+            predictor_memory = SequenceLinear(predictor_in.weight[:, :d_rho], None, dtype)  # reads rho_t
+            predictor_output = SequenceLinear(predictor_out.weight, predictor_out.bias, dtype)
+
+        map_state, task_state, memory_state, message, held = state.map_state, state.task_state, state.memory_state, \
+            state.prev_message, state.held_message
+        outputs: list[list[th.Tensor]] = [[], [], [], [], []]
+        for t in range(n_steps):
+            keep_t = keep[t]
+            map_prev, task_prev, memory_prev, message_prev, held_prev = (
+                field * keep_t for field in (map_state, task_state, memory_state, message, held)
+            )
+            # Sec. III-B: z_{t-1}^j = [mu_{t-1}^j; tau_{t-1}^j],  m_t^i = mean_{j in N_t^i} z_{t-1}^j
+            sent_message = th.cat([map_prev, task_prev], dim=-1)  # (B, d_msg)
+            messages = sent_message.view(n_swarms, n_agents, self.message_dim)
+            received_message = (th.bmm(inputs.link_mask[t], messages) / inputs.in_degree[t]).view(batch, self.message_dim)
+            # Sec. III-A: rho_t = G_psi(rho_{t-1}, tau_{t-1}, o_{t-1}, mbar_{t-1})   (no_memory: rho zeroed before use)
+            if self.no_memory:
+                memory_prev = th.zeros_like(memory_prev)
+            memory_gates = memory_in(th.cat([task_prev, message_prev], dim=-1), memory_x[t])
+            memory_state = gru_update(memory_gates, memory_hidden(memory_prev), memory_prev)
+            # Sec. III-C: mhat_t = P_zeta(rho_t, o_t, e_t);  mbar_t = m_t if N_t^i != {} else the substitute
+            received_now = inputs.has_message[t].unsqueeze(-1)
+            if use_predictor:
+                hidden = predictor_x[t] if self.no_memory else predictor_memory(memory_state, predictor_x[t])
+                substitute = predictor_output(th.tanh(hidden))
+                outputs[3].append(substitute)
+            else:
+                outputs[3].append(memory_state)
+                if self.message_substitute == "zero":
+                    substitute = th.zeros_like(received_message)
+                elif self.message_substitute == "hold_last":
+                    substitute = held_prev
+                else:  # own_message
+                    substitute = sent_message
+            held = th.where(received_now, received_message, held_prev).float()
+            message = th.where(received_now, received_message, substitute).float()
+            # Sec. III-A, asymmetric update: mu_t = E_phi(mu_{t-1}, o_t, p_t, m^mu_t), m^mu_t = 0 when nothing arrived
+            map_state = gru_update(map_in(received_message[:, :d_mu], map_x[t]), map_hidden(map_prev), map_prev)
+            # Sec. III-A: tau_t = F_theta(tau_{t-1}, o_t, e_t, mu_{t-1}, mbar_t)
+            task_gates = task_in(th.cat([map_prev, message], dim=-1), task_x[t])
+            task_state = gru_update(task_gates, task_hidden(task_prev), task_prev)
+            for output, value in zip(outputs, (task_state, map_state, received_message)):
+                output.append(value)
+            outputs[4].append(inputs.has_message[t])
+        task_states, map_states, received, predicted, has_message = (th.stack(output) for output in outputs)
+        if not use_predictor:  # mhat_t did not feed the recurrence: all T * B rows at once (rho_t zeroed under no_memory)
+            memory_used = th.zeros_like(predicted) if self.no_memory else predicted
+            predicted = self.message_predictor(th.cat([memory_used, observed], dim=-1))
+        return task_states, map_states, received.float(), predicted.float(), has_message
+
 
     def _predict(self, observation: dict[str, th.Tensor], deterministic: bool = False) -> th.Tensor:  # type: ignore[override]
         raise RuntimeError("LatentSwarmPolicy is recurrent: call predict(obs, state, episode_start, deterministic)")

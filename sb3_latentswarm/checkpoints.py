@@ -35,7 +35,6 @@ import random
 import re
 import signal
 import sys
-import threading
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
@@ -49,6 +48,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
 from sb3_latentswarm.common.atomic import write_bytes, write_text
 from sb3_latentswarm.common.checks import check_int
+from sb3_latentswarm.common.signals import SignalHandlers
 from sb3_latentswarm.common.type_aliases import LatentState
 
 __all__ = [
@@ -434,7 +434,7 @@ class TrainingInterrupted(KeyboardInterrupt):
         super().__init__(f"training stopped by {name}; checkpoint {checkpoint}")
 
 
-class StopOnSignal:
+class StopOnSignal(SignalHandlers):
     """Context manager: the first SIGINT / SIGTERM sets :attr:`signum` (training stops cleanly at its next step, see
     :class:`SwarmCheckpointCallback`); a second one raises ``KeyboardInterrupt`` at once.
 
@@ -444,8 +444,8 @@ class StopOnSignal:
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
     def __init__(self) -> None:
+        super().__init__()
         self.signum: int | None = None
-        self._previous: dict[int, Any] = {}
 
     def _handle(self, signum: int, frame: Any) -> None:
         if self.signum is not None:
@@ -462,15 +462,7 @@ class StopOnSignal:
         return signal.Signals(self.signum).name if self.signum else ""
 
     def __enter__(self) -> StopOnSignal:
-        if threading.current_thread() is threading.main_thread():
-            for signum in self.SIGNALS:
-                self._previous[signum] = signal.signal(signum, self._handle)
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        for signum, handler in self._previous.items():
-            signal.signal(signum, handler)
-        self._previous.clear()
+        return super().__enter__()
 
 
 class SwarmCheckpointCallback(BaseCallback):

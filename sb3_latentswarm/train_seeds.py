@@ -29,12 +29,13 @@ import shlex
 import signal
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from sb3_latentswarm.common.signals import SignalHandlers
 
 SEEDS_RECORD = "seeds.json"
 """Written into ``train --seeds``'s ``--output``: the run's settings, the number of seeds and each seed's result;
@@ -162,26 +163,20 @@ def child_environment(threads: int = 1) -> dict[str, str]:
     }
 
 
-class _Signals:
+class _Signals(SignalHandlers):
     """Context manager recording SIGINT / SIGTERM / SIGHUP (main thread only) instead of acting on them."""
 
+    SIGNALS = tuple(FORWARDED_SIGNALS)
+
     def __init__(self) -> None:
+        super().__init__()
         self.received: list[int] = []
-        self._previous: dict[int, Any] = {}
 
     def _handle(self, signum: int, frame: Any) -> None:
         self.received.append(signum)
 
     def __enter__(self) -> _Signals:
-        if threading.current_thread() is threading.main_thread():
-            for signum in FORWARDED_SIGNALS:
-                self._previous[signum] = signal.signal(signum, self._handle)
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        for signum, handler in self._previous.items():
-            signal.signal(signum, handler)
-        self._previous.clear()
+        return super().__enter__()
 
 
 @dataclass

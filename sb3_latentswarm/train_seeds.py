@@ -168,13 +168,6 @@ class _Signals(SignalHandlers):
 
     SIGNALS = tuple(FORWARDED_SIGNALS)
 
-    def __init__(self) -> None:
-        super().__init__()
-        self.received: list[int] = []
-
-    def _handle(self, signum: int, frame: Any) -> None:
-        self.received.append(signum)
-
     def __enter__(self) -> _Signals:
         return super().__enter__()
 

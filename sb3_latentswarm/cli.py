@@ -901,6 +901,8 @@ def command_sweep(args: argparse.Namespace) -> int:
         extra_eval_sets=[_parse_eval_set(text) for text in args.eval_set or []],
         eval_episodes=args.eval_episodes,
         deterministic=not args.stochastic,
+        total_timesteps=args.total_timesteps,
+        warm_start=args.warm_start,
     )
     try:
         run_sweep(
@@ -1113,6 +1115,15 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         metavar="NAME=FIELD=V,...",
         help="an extra evaluation cell: config overrides, optionally conditions=C1+C2 (default: every condition)",
+    )
+    sweep.add_argument(
+        "--total-timesteps", type=int_at_least(1), default=None, metavar="AGENT_STEPS",
+        help="training budget of every trial (default: the preset's)",
+    )
+    sweep.add_argument(
+        "--warm-start", default=None, metavar="SWEEP_DIR",
+        help="continue the finished models of the sweep in SWEEP_DIR (same preset, grid and --set) up to "
+        "--total-timesteps, instead of training from scratch; the trials' progress.csv start with that sweep's rows",
     )
     sweep.add_argument("--eval-episodes", type=int_at_least(1), default=None, help="episodes per cell (default: the preset's)")
     sweep.add_argument("--stochastic", action="store_true", help="evaluate with sampled actions (default: the mean action)")

@@ -435,3 +435,66 @@ def test_a_sweep_trial_killed_mid_way_resumes_from_its_checkpoint(tmp_path):
     record = json.loads((output / "trials" / trial["trial_id"] / "trial.json").read_text())
     assert 0 < record["resumed_from_agent_steps"] == stopped < record["trained_agent_steps"]
     assert not work.exists() and not (output / "trials" / trial["trial_id"] / "checkpoints").exists()
+
+
+def _finished_smoke_sweep(output: Path, **create) -> SweepSpec:
+    """A one-trial smoke sweep (``proposed``, seed 0) trained and evaluated into ``output`` without Ray."""
+    from sb3_latentswarm.experiments import train_and_evaluate
+
+    spec = SweepSpec.create("smoke", 1, variants=["proposed"], eval_episodes=1, **create)
+    output.mkdir(parents=True)
+    spec.save(output / "sweep.json")
+    trial = plan_trials(spec, "test")[0]
+    train_and_evaluate(trial, output / "trials" / trial["trial_id"], device="cpu")
+    return spec
+
+
+def _adam_steps(model_zip: Path) -> int:
+    from sb3_latentswarm import LatentSwarmPPO
+
+    state = LatentSwarmPPO.load(model_zip, device="cpu").policy.optimizer.state_dict()["state"]
+    return int(next(iter(state.values()))["step"])
+
+
+def test_a_warm_started_sweep_continues_the_earlier_models(tmp_path):
+    earlier = _finished_smoke_sweep(tmp_path / "a")
+    budget = earlier.point_preset({}).total_timesteps
+    spec = _finished_smoke_sweep(tmp_path / "b", warm_start=tmp_path / "a", total_timesteps=2 * budget)
+    assert spec.warm_start == str((tmp_path / "a").resolve()) and spec.warm_start_depth == 1
+    before, after = (json.loads((tmp_path / d / "trials" / "proposed-seed0" / "trial.json").read_text()) for d in "ab")
+    assert after["warm_start"]["agent_steps"] == before["trained_agent_steps"] == budget
+    assert after["trained_agent_steps"] == after["budget_agent_steps"] == 2 * budget
+    # the continuation draws new env episodes: its copies are seeded WARM_START_SEED_STRIDE above the run's
+    assert after["training_env_seeds"][0] == before["training_env_seeds"][0] + 500_000
+    # the same optimizer, continued: Adam has taken the earlier run's gradient steps and as many again
+    steps = [_adam_steps(tmp_path / d / "trials" / "proposed-seed0" / "model.zip") for d in "ab"]
+    assert steps[1] == 2 * steps[0] > 0
+    # progress.csv: the earlier run's rows unchanged, then the continuation's
+    rows = [pd.read_csv(tmp_path / d / "trials" / "proposed-seed0" / "progress.csv") for d in "ab"]
+    assert rows[1]["agent_steps"].tolist() == [120.0, 240.0, 360.0, 480.0]
+    pd.testing.assert_frame_equal(rows[1].iloc[:2], rows[0], check_like=True)
+
+
+def test_a_warm_start_that_cannot_continue_is_refused_before_training(tmp_path):
+    _finished_smoke_sweep(tmp_path / "a")
+    budget = SweepSpec.create("smoke", 1).point_preset({}).total_timesteps
+    with pytest.raises(ValueError, match="as many agent-steps as this sweep.s budget"):
+        SweepSpec.create("smoke", 1, variants=["proposed"], warm_start=tmp_path / "a")
+    with pytest.raises(ValueError, match=r"differs in \['overrides'\]"):
+        SweepSpec.create("smoke", 1, variants=["proposed"], overrides={"p_fail": 0.5}, warm_start=tmp_path / "a",
+                         total_timesteps=2 * budget)
+    with pytest.raises(ValueError, match=r"not finished there: \['no_comm-seed0', 'proposed-seed1', 'no_comm-seed1'\]"):
+        SweepSpec.create("smoke", 2, variants=["proposed", "no_comm"], warm_start=tmp_path / "a", total_timesteps=2 * budget)
+    with pytest.raises(ValueError, match="independent RecurrentPPO baseline cannot be continued"):
+        SweepSpec.create("smoke", 1, variants=["independent"], warm_start=tmp_path / "a", total_timesteps=2 * budget)
+    with pytest.raises(ValueError, match="no sweep.json"):
+        SweepSpec.create("smoke", 1, variants=["proposed"], warm_start=tmp_path, total_timesteps=2 * budget)
+    with pytest.raises(ValueError, match="--total-timesteps"):
+        SweepSpec.create("smoke", 1, total_timesteps=0)
+
+
+def test_a_spec_written_before_budget_and_warm_start_existed_loads(tmp_path):
+    spec = SweepSpec.create("smoke", 1, variants=["proposed"])
+    old = {k: v for k, v in spec.to_dict().items() if k not in ("total_timesteps", "warm_start")}
+    (tmp_path / "sweep.json").write_text(json.dumps(old))
+    assert SweepSpec.load(tmp_path / "sweep.json") == spec

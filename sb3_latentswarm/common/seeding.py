@@ -10,7 +10,12 @@ from __future__ import annotations
 
 from sb3_latentswarm.common.checks import check_int
 
-__all__ = ["training_env_seed"]
+__all__ = ["WARM_START_SEED_STRIDE", "training_env_seed", "warm_start_seed"]
+
+WARM_START_SEED_STRIDE = 500_000
+"""Seed offset of a continued run (``sweep --warm-start``): the ``d``-th continuation of a run seeds its model and its env
+copies ``d * WARM_START_SEED_STRIDE`` higher than the run itself, so it does not replay the episodes and the random
+numbers the run began with; still below the held-out evaluation seeds (1,000,000) for ``d = 1``."""
 
 
 def training_env_seed(train_seed: int, n_envs: int) -> int:
@@ -25,3 +30,14 @@ def training_env_seed(train_seed: int, n_envs: int) -> int:
     :raises TypeError, ValueError: ``train_seed`` not an int >= 0, ``n_envs`` not an int >= 1
     """
     return check_int("train_seed", train_seed, low=0) * check_int("n_envs", n_envs, low=1)
+
+
+def warm_start_seed(seed: int, depth: int) -> int:
+    """The seed of the ``depth``-th continuation of a run seeded ``seed``: ``seed + depth * WARM_START_SEED_STRIDE``.
+
+    :param seed: a model seed or the seed of env copy 0 (:func:`training_env_seed`), >= 0
+    :param depth: 0 for the run itself, 1 for a run that continues it (``sweep --warm-start``), 2 for one that continues
+        that, ...
+    :raises TypeError, ValueError: ``seed`` or ``depth`` not an int >= 0
+    """
+    return check_int("seed", seed, low=0) + check_int("depth", depth, low=0) * WARM_START_SEED_STRIDE

@@ -23,6 +23,7 @@ from typing import Any
 
 from sb3_latentswarm.common.atomic import write_text
 from sb3_latentswarm.common.checks import check_bool, check_int
+from sb3_latentswarm.common.seeding import warm_start_seed
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.experiments.trial import (
     EVAL_SEED_BASE,
@@ -133,6 +134,14 @@ class SweepSpec:
     """Env seed of the first evaluation episode; episode ``e`` uses ``eval_seed + e`` (held out from training)."""
     deterministic: bool = True
     """Evaluate with the mean action (``True``) or sampled actions (``--stochastic``)."""
+    total_timesteps: int | None = None
+    """Training budget of every trial in agent-steps (``--total-timesteps``); ``None``: the preset's."""
+    warm_start: str | None = None
+    """Folder of an earlier sweep (``--warm-start``): each trial continues that sweep's finished model of the same id
+    (its weights, optimizer state and agent-step count; SB3's ``load`` + ``learn(reset_num_timesteps=False)``) up to
+    :attr:`total_timesteps`, instead of starting from scratch. The earlier sweep must have the same preset, grid and
+    ``--set`` overrides (the evaluation may differ); its progress rows open the trial's ``progress.csv``. ``None``: every
+    trial starts from a new model."""
 
     @classmethod
     def create(
@@ -148,6 +157,8 @@ class SweepSpec:
         eval_episodes: int | None = None,
         eval_seed: int = EVAL_SEED_BASE,
         deterministic: bool = True,
+        total_timesteps: int | None = None,
+        warm_start: str | Path | None = None,
     ) -> SweepSpec:
         """Validate a sweep's arguments and return its spec; nothing is trained, no file is written.
 
@@ -155,8 +166,11 @@ class SweepSpec:
         :param eval_sets: the evaluation cells (default: :func:`~.trial.default_eval_sets` of the preset)
         :param extra_eval_sets: cells added after ``eval_sets``
         :param eval_episodes: default ``overrides["eval_episodes"]``, else the preset's
+        :param total_timesteps: the budget of every trial in agent-steps, >= 1 (default: the preset's)
+        :param warm_start: an earlier sweep's folder whose finished models the trials continue (see :attr:`warm_start`)
         :raises ValueError, TypeError: for an unknown name, a repeated or duplicate grid value, an evaluation-only grid
-            name, or a setting that ``SwarmConfig``, the vec env, ``LatentSwarmPPO`` or its policy refuses
+            name, a setting that ``SwarmConfig``, the vec env, ``LatentSwarmPPO`` or its policy refuses, or a
+            ``warm_start`` folder that does not hold this sweep's finished trials at a smaller budget
         """
         get_preset(preset)  # an unknown name fails here
         check_int("--seeds", seeds, low=1)
@@ -187,6 +201,12 @@ class SweepSpec:
         check_int("--eval-episodes", eval_episodes, low=1)
         check_int("eval_seed", eval_seed, low=0)
         check_bool("deterministic", deterministic)
+        if total_timesteps is not None:
+            check_int("--total-timesteps", total_timesteps, low=1)
+        if warm_start is not None:
+            if not isinstance(warm_start, (str, Path)):
+                raise TypeError(f"--warm-start must be a folder path, got {type(warm_start).__name__}")
+            warm_start = str(Path(warm_start).resolve())  # Ray's workers run elsewhere
         eval_sets = (*(default_eval_sets(base) if eval_sets is None else eval_sets), *extra_eval_sets)
         spec = cls(
             preset=preset,
@@ -198,7 +218,11 @@ class SweepSpec:
             eval_episodes=eval_episodes,
             eval_seed=eval_seed,
             deterministic=deterministic,
+            total_timesteps=total_timesteps,
+            warm_start=warm_start,
         )
+        if spec.warm_start is not None:
+            spec.check_warm_start()
         spec.validate()
         return spec
 
@@ -208,7 +232,67 @@ class SweepSpec:
 
     def trial_presets(self) -> list[Preset]:
         """The preset of every grid point (the ``--set`` overrides, then the point), in :meth:`grid_points` order."""
-        return [trial_preset(self.preset, self.overrides, point) for point in self.grid_points()]
+        return [self.point_preset(point) for point in self.grid_points()]
+
+    def point_preset(self, grid_point: Mapping[str, Any]) -> Preset:
+        """The preset a grid point's trials train and evaluate with: the named preset, the ``--set`` overrides, the
+        point, and :attr:`total_timesteps` as the budget of every variant (the ``independent`` baseline's too)."""
+        preset = trial_preset(self.preset, self.overrides, dict(grid_point))
+        if self.total_timesteps is None:
+            return preset
+        return dataclasses.replace(preset, total_timesteps=self.total_timesteps, baseline_timesteps=self.total_timesteps)
+
+    @property
+    def warm_start_depth(self) -> int:
+        """0 for a sweep that trains from scratch; 1 + the depth of :attr:`warm_start`'s sweep for one that continues
+        it (the continuation's seed offset, :func:`~sb3_latentswarm.common.seeding.warm_start_seed`)."""
+        if self.warm_start is None:
+            return 0
+        return 1 + SweepSpec.load(Path(self.warm_start) / "sweep.json").warm_start_depth
+
+    def check_warm_start(self) -> None:
+        """Check that :attr:`warm_start` holds a sweep this one can continue: same preset, grid and ``--set`` overrides,
+        every trial of this sweep finished there (``trial.json``, ``model.zip``, ``progress.csv``), each at fewer
+        agent-steps than this sweep's budget, and no ``independent`` variant (sb3-contrib's RecurrentPPO baseline is
+        trained in one call, without checkpoints).
+
+        :raises ValueError: naming what differs or what is missing
+        """
+        folder = Path(str(self.warm_start))
+        if not (folder / "sweep.json").is_file():
+            raise ValueError(f"--warm-start {folder}: no sweep.json there; give the folder of a finished sweep")
+        earlier = SweepSpec.load(folder / "sweep.json")
+        if "independent" in self.variants:
+            raise ValueError(
+                "--warm-start: the independent RecurrentPPO baseline cannot be continued; leave it out of --variant"
+            )
+        names = ("preset", "grid", "overrides")
+        differ = [name for name in names if _jsonable(getattr(self, name)) != _jsonable(getattr(earlier, name))]
+        if differ:
+            raise ValueError(
+                f"--warm-start {folder}: that sweep differs in {differ} "
+                f"({ {name: _jsonable(getattr(earlier, name)) for name in differ} }); a continued trial must train the same "
+                "way (only --total-timesteps and the evaluation may change)"
+            )
+        missing, too_long = [], {}
+        for point, preset in zip(self.grid_points(), self.trial_presets()):
+            for seed in self.seeds:
+                for variant in self.variants:
+                    name = trial_id(variant, seed, point)
+                    trial_dir = folder / "trials" / name
+                    if not all((trial_dir / f).is_file() for f in ("trial.json", "model.zip", "progress.csv")):
+                        missing.append(name)
+                        continue
+                    steps = int(json.loads((trial_dir / "trial.json").read_text())["trained_agent_steps"])
+                    if steps >= preset.total_timesteps:
+                        too_long[name] = (steps, preset.total_timesteps)
+        if missing:
+            raise ValueError(f"--warm-start {folder}: these trials are not finished there: {missing}")
+        if too_long:
+            raise ValueError(
+                f"--warm-start {folder}: trials already trained as many agent-steps as this sweep's budget, or more "
+                f"(trained, budget): {too_long}; give a larger --total-timesteps"
+            )
 
     @property
     def n_trials(self) -> int:
@@ -238,7 +322,9 @@ class SweepSpec:
             check_training_settings(point_preset, where, self.variants)
             for eval_set in self.eval_sets:
                 point_preset.config.replace(**eval_set.overrides)
-        largest_training_seed = training_env_seed(len(self.seeds), max(p.n_envs for p in presets))
+        largest_training_seed = warm_start_seed(
+            training_env_seed(len(self.seeds), max(p.n_envs for p in presets)), self.warm_start_depth
+        )
         if self.eval_seed < largest_training_seed:
             raise ValueError(
                 f"eval_seed={self.eval_seed} overlaps the training env seeds (up to {largest_training_seed - 1}); "
@@ -260,13 +346,17 @@ class SweepSpec:
             "eval_episodes": self.eval_episodes,
             "eval_seed": self.eval_seed,
             "deterministic": self.deterministic,
+            "total_timesteps": self.total_timesteps,
+            "warm_start": self.warm_start,
         }
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> SweepSpec:
-        """The spec of :meth:`to_dict`'s output (JSON lists become tuples again); not re-validated."""
+        """The spec of :meth:`to_dict`'s output (JSON lists become tuples again); not re-validated. Keys added after a
+        spec was written (``total_timesteps``, ``warm_start``) take their defaults."""
         expected = {f.name for f in dataclasses.fields(cls)}
-        if set(data) != expected:
+        required = expected - {"total_timesteps", "warm_start"}
+        if not required <= set(data) <= expected:
             raise ValueError(f"a sweep spec has the keys {sorted(expected)}, got {sorted(data)}")
         return cls(
             preset=data["preset"],
@@ -278,6 +368,8 @@ class SweepSpec:
             eval_episodes=data["eval_episodes"],
             eval_seed=data["eval_seed"],
             deterministic=data["deterministic"],
+            total_timesteps=data.get("total_timesteps"),
+            warm_start=data.get("warm_start"),
         )
 
     def save(self, path: str | Path) -> None:
@@ -294,6 +386,11 @@ class SweepSpec:
             return cls.from_dict(json.loads(Path(path).read_text()))
         except (json.JSONDecodeError, KeyError, TypeError, ValueError) as error:
             raise ValueError(f"{path} is not a sweep spec ({error})") from None
+
+
+def _jsonable(value: Any) -> Any:
+    """``value`` as ``sweep.json`` holds it (tuples as lists), to compare a spec with one read back."""
+    return json.loads(json.dumps(value, default=repr))
 
 
 def _as_tuples(value: Any) -> Any:

@@ -25,7 +25,7 @@ import pandas as pd
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_latentswarm import evaluation
-from sb3_latentswarm.common.seeding import training_env_seed
+from sb3_latentswarm.common.seeding import training_env_seed, warm_start_seed
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.presets import Preset, get_preset
 
@@ -38,6 +38,8 @@ TRAINING_SUBSTITUTES = {"zero_substitute": "zero", "hold_last": "hold_last"}
 """``LatentSwarmPolicy.message_substitute`` of the variants trained with another substitute than the predictor."""
 EVAL_SEED_BASE = evaluation.HELD_OUT_SEED
 """First env seed of the evaluation episodes (training env seeds stay below it)."""
+PROGRESS_COLUMNS = ("agent_steps", "episode_reward", "coverage", "collisions")
+"""The columns of a trial's ``progress.csv`` rows (:class:`TuneProgress`), besides the trial's labels."""
 SCORE_METRICS = ("coverage", "collisions", "steps_to_90", "reached_90")
 """Per-run scores of an evaluation cell: means over its episodes (``steps_to_90`` over the episodes that reached 90 %
 coverage, NaN if none did; ``reached_90`` is the percentage that did)."""
@@ -244,10 +246,11 @@ def train_and_evaluate(
 
     spec = trial["spec"]
     variant, train_seed, grid_point = trial["variant"], int(trial["train_seed"]), dict(trial["grid_point"])
-    preset = trial_preset(spec.preset, spec.overrides, grid_point)
+    preset = spec.point_preset(grid_point)
     # no_comm trains the same architecture with every link down; it is evaluated on the same env as the others
     train_config = preset.config.replace(link_mode="none") if variant == "no_comm" else preset.config
-    env_seed = training_env_seed(train_seed, preset.n_envs)
+    depth = spec.warm_start_depth  # a continued trial draws new episodes and random numbers (warm_start_seed)
+    env_seed = warm_start_seed(training_env_seed(train_seed, preset.n_envs), depth)
     env = preset.make_env(env_seed, config=train_config)
     progress = TuneProgress(report)
     output = Path(output)
@@ -255,6 +258,7 @@ def train_and_evaluate(
     latest = latest_checkpoint(checkpoint_dir) if variant != "independent" else None
     identity = _trial_identity(trial)
     resumed_from = None
+    warm_started: dict[str, Any] | None = None  # the earlier sweep's trial this one continues (spec.warm_start)
     if latest is not None:
         if not resume:
             raise CheckpointError(f"{checkpoint_dir} holds checkpoints (newest {latest.name}); pass resume=True to continue")
@@ -264,6 +268,7 @@ def train_and_evaluate(
             raise CheckpointError(f"{latest} is a checkpoint of another trial (it differs in {differ}); use another folder")
         resumed_from = int(stored["num_timesteps"])
         progress.rows = list(stored["extra"].get("progress_rows", []))
+        warm_started = stored["extra"].get("warm_start")
     probe_writable(output, room_bytes=1 << 20)
     start = time.perf_counter()
     model: LatentSwarmPPO | IndependentRecurrentPPO
@@ -275,6 +280,19 @@ def train_and_evaluate(
     else:
         if latest is not None:
             latent = LatentSwarmPPO.load_checkpoint(latest, env=env, device=device)
+        elif spec.warm_start is not None:
+            earlier_dir = Path(spec.warm_start) / "trials" / trial["trial_id"]
+            latent = LatentSwarmPPO.load(earlier_dir / "model.zip", env=env, device=device)
+            latent.set_random_seed(warm_start_seed(train_seed, depth))
+            earlier = json.loads((earlier_dir / "trial.json").read_text())
+            warm_started = {
+                "sweep": spec.warm_start,
+                "agent_steps": int(latent.num_timesteps),
+                "train_seconds": earlier.get("train_seconds"),
+                "commit": earlier.get("commit"),
+            }
+            rows = pd.read_csv(earlier_dir / "progress.csv")
+            progress.rows = rows[[c for c in PROGRESS_COLUMNS if c in rows.columns]].to_dict("records")
         else:
             latent = preset.make_model(env, seed=train_seed, device=device, **variant_algo_kwargs(variant, preset.algo_kwargs))
         per_update = preset.agent_steps_per_update
@@ -285,12 +303,13 @@ def train_and_evaluate(
                 checkpoint_dir,
                 keep=keep_checkpoints,
                 settings=identity,
-                extra_state=lambda: {"progress_rows": progress.rows},
+                extra_state=lambda: {"progress_rows": progress.rows, "warm_start": warm_started},
                 stop=stop,
             )
             remaining = preset.total_timesteps - latent.num_timesteps
             if remaining > 0:
-                latent.learn(total_timesteps=remaining, callback=[progress, checkpoints], reset_num_timesteps=latest is None)
+                fresh = latest is None and spec.warm_start is None
+                latent.learn(total_timesteps=remaining, callback=[progress, checkpoints], reset_num_timesteps=fresh)
         if checkpoints.stopped:
             raise TrainingInterrupted(stop.signum, checkpoints.last_path)
         model, trained_steps, trained_on = latent, latent.num_timesteps, latent.device
@@ -328,6 +347,7 @@ def train_and_evaluate(
         "budget_agent_steps": preset.total_timesteps,
         "trained_agent_steps": int(trained_steps),
         "resumed_from_agent_steps": resumed_from,
+        "warm_start": warm_started,
         "train_seconds": train_seconds,
         "eval_seconds": eval_seconds,
         "eval_sets": [s.to_dict() for s in spec.eval_sets],
@@ -346,6 +366,7 @@ __all__ = [
     "SCORE_METRICS",
     "VARIANTS",
     "EvalSet",
+    "PROGRESS_COLUMNS",
     "TRAINING_SUBSTITUTES",
     "TuneProgress",
     "conditions_for",

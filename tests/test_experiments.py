@@ -473,6 +473,10 @@ def test_a_warm_started_sweep_continues_the_earlier_models(tmp_path):
     rows = [pd.read_csv(tmp_path / d / "trials" / "proposed-seed0" / "progress.csv") for d in "ab"]
     assert rows[1]["agent_steps"].tolist() == [120.0, 240.0, 360.0, 480.0]
     pd.testing.assert_frame_equal(rows[1].iloc[:2], rows[0], check_like=True)
+    write_report(tmp_path / "b")
+    assert f"warm start: 1 of 1 trials continue the models of ['{tmp_path / 'a'}'] from 240 agent-steps" in (
+        tmp_path / "b" / "run.md"
+    ).read_text()
 
 
 def test_a_warm_start_that_cannot_continue_is_refused_before_training(tmp_path):

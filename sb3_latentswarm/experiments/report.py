@@ -406,6 +406,16 @@ def write_report(output: str | Path, commit: str | None = None) -> pd.DataFrame:
         "trial nodes: " + "; ".join(f"{node}: {', '.join(sorted(ran))}" for node, ran in nodes.items()),
         f"train wall time per trial: {np.median([r['train_seconds'] for r in records]):.0f} s (median)",
     ]
+    warm = [r["warm_start"] for r in records if r.get("warm_start")]
+    if warm:
+        earlier_seconds = [w["train_seconds"] for w in warm if w.get("train_seconds") is not None]
+        facts.append(
+            f"warm start: {len(warm)} of {len(records)} trials continue the models of {sorted({w['sweep'] for w in warm})} "
+            f"from {_counts(pd.Series([w['agent_steps'] for w in warm]))} agent-steps (trained at commits "
+            f"{', '.join(sorted({str(w.get('commit')) for w in warm}))}"
+            + (f", {np.median(earlier_seconds):.0f} s median" if earlier_seconds else "")
+            + "); the train wall time above is the continuation's"
+        )
     body = ["## Across-seed intervals", "", markdown]
     if not plateau.empty:
         body += ["## Have the training curves flattened?", "",

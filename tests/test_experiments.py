@@ -437,11 +437,11 @@ def test_a_sweep_trial_killed_mid_way_resumes_from_its_checkpoint(tmp_path):
     assert not work.exists() and not (output / "trials" / trial["trial_id"] / "checkpoints").exists()
 
 
-def _finished_smoke_sweep(output: Path, **create) -> SweepSpec:
-    """A one-trial smoke sweep (``proposed``, seed 0) trained and evaluated into ``output`` without Ray."""
+def _finished_smoke_sweep(output: Path, variant: str = "proposed", **create) -> SweepSpec:
+    """A one-trial smoke sweep (``variant``, seed 0) trained and evaluated into ``output`` without Ray."""
     from sb3_latentswarm.experiments import train_and_evaluate
 
-    spec = SweepSpec.create("smoke", 1, variants=["proposed"], eval_episodes=1, **create)
+    spec = SweepSpec.create("smoke", 1, variants=[variant], eval_episodes=1, **create)
     output.mkdir(parents=True)
     spec.save(output / "sweep.json")
     trial = plan_trials(spec, "test")[0]
@@ -449,11 +449,26 @@ def _finished_smoke_sweep(output: Path, **create) -> SweepSpec:
     return spec
 
 
-def _adam_steps(model_zip: Path) -> int:
+def _adam_steps(model_zip: Path, variant: str = "proposed") -> int:
     from sb3_latentswarm import LatentSwarmPPO
+    from sb3_latentswarm.baselines import IndependentRecurrentPPO
 
-    state = LatentSwarmPPO.load(model_zip, device="cpu").policy.optimizer.state_dict()["state"]
+    if variant == "independent":
+        model = IndependentRecurrentPPO.load(model_zip, device="cpu").model
+    else:
+        model = LatentSwarmPPO.load(model_zip, device="cpu")
+    state = model.policy.optimizer.state_dict()["state"]
     return int(next(iter(state.values()))["step"])
+
+
+def test_a_warm_started_independent_baseline_continues_its_recurrent_ppo(tmp_path):
+    earlier = _finished_smoke_sweep(tmp_path / "a", "independent")
+    budget = earlier.point_preset({}).total_timesteps
+    _finished_smoke_sweep(tmp_path / "b", "independent", warm_start=tmp_path / "a", total_timesteps=2 * budget)
+    after = json.loads((tmp_path / "b" / "trials" / "independent-seed0" / "trial.json").read_text())
+    assert after["warm_start"]["agent_steps"] == budget and after["trained_agent_steps"] >= 2 * budget
+    steps = [_adam_steps(tmp_path / d / "trials" / "independent-seed0" / "model.zip", "independent") for d in "ab"]
+    assert steps[1] == 2 * steps[0] > 0
 
 
 def test_a_warm_started_sweep_continues_the_earlier_models(tmp_path):
@@ -489,7 +504,7 @@ def test_a_warm_start_that_cannot_continue_is_refused_before_training(tmp_path):
                          total_timesteps=2 * budget)
     with pytest.raises(ValueError, match=r"not finished there: \['no_comm-seed0', 'proposed-seed1', 'no_comm-seed1'\]"):
         SweepSpec.create("smoke", 2, variants=["proposed", "no_comm"], warm_start=tmp_path / "a", total_timesteps=2 * budget)
-    with pytest.raises(ValueError, match="independent RecurrentPPO baseline cannot be continued"):
+    with pytest.raises(ValueError, match=r"not finished there: \['independent-seed0'\]"):
         SweepSpec.create("smoke", 1, variants=["independent"], warm_start=tmp_path / "a", total_timesteps=2 * budget)
     with pytest.raises(ValueError, match="no sweep.json"):
         SweepSpec.create("smoke", 1, variants=["proposed"], warm_start=tmp_path, total_timesteps=2 * budget)

@@ -90,6 +90,7 @@ def train_independent_ppo(
     n_steps: int = 128,
     batch_size: int = 512,
     callback: MaybeCallback = None,
+    continue_from: str | Path | None = None,
     **kwargs: Any,
 ) -> IndependentRecurrentPPO:
     """Train sb3-contrib ``RecurrentPPO("MultiInputLstmPolicy")`` on each UAV's own observation.
@@ -101,7 +102,22 @@ def train_independent_ppo(
     :param kwargs: other ``RecurrentPPO`` arguments; ``policy_kwargs`` are added to the LSTM sizes above
         (:meth:`Preset.independent_ppo_kwargs <sb3_latentswarm.presets.Preset.independent_ppo_kwargs>` gives a
         preset's PPO settings)
+    :param continue_from: a model saved by :meth:`IndependentRecurrentPPO.save` to train on (weights, optimizer
+        state, agent-step count; SB3's ``load`` + ``learn(reset_num_timesteps=False)``) up to ``total_timesteps``
+        instead of a new model; ``seed`` then reseeds its random numbers, and the other arguments are the saved ones
+    :raise ValueError: for a ``continue_from`` model that has already trained ``total_timesteps`` or more
     """
+    if continue_from is not None:
+        model = IndependentRecurrentPPO.load(continue_from, device=kwargs.get("device", "auto")).model
+        if model.num_timesteps >= total_timesteps:
+            raise ValueError(
+                f"continue_from {continue_from} has trained {model.num_timesteps:,} agent-steps, not fewer than "
+                f"total_timesteps={total_timesteps:,}"
+            )
+        model.set_env(OwnObservationVecEnv(vec_env))
+        model.set_random_seed(seed)
+        model.learn(total_timesteps=total_timesteps - model.num_timesteps, callback=callback, reset_num_timesteps=False)
+        return IndependentRecurrentPPO(model)
     policy_kwargs = dict(lstm_hidden_size=hidden, net_arch=[hidden], **kwargs.pop("policy_kwargs", {}))
     settings: dict[str, Any] = dict(n_steps=n_steps, batch_size=batch_size, ent_coef=0.01, seed=seed)
     model = RecurrentPPO(

@@ -253,8 +253,7 @@ class SweepSpec:
     def check_warm_start(self) -> None:
         """Check that :attr:`warm_start` holds a sweep this one can continue: same preset, grid and ``--set`` overrides,
         every trial of this sweep finished there (``trial.json``, ``model.zip``, ``progress.csv``), each at fewer
-        agent-steps than this sweep's budget, and no ``independent`` variant (sb3-contrib's RecurrentPPO baseline is
-        trained in one call, without checkpoints).
+        agent-steps than this sweep's budget.
 
         :raises ValueError: naming what differs or what is missing
         """
@@ -262,10 +261,6 @@ class SweepSpec:
         if not (folder / "sweep.json").is_file():
             raise ValueError(f"--warm-start {folder}: no sweep.json there; give the folder of a finished sweep")
         earlier = SweepSpec.load(folder / "sweep.json")
-        if "independent" in self.variants:
-            raise ValueError(
-                "--warm-start: the independent RecurrentPPO baseline cannot be continued; leave it out of --variant"
-            )
         names = ("preset", "grid", "overrides")
         differ = [name for name in names if _jsonable(getattr(self, name)) != _jsonable(getattr(earlier, name))]
         if differ:

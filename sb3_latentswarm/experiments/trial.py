@@ -199,6 +199,19 @@ def _trial_identity(trial: dict[str, Any]) -> dict[str, Any]:
     return json.loads(json.dumps(identity, default=repr))
 
 
+def _warm_start_record(spec: Any, earlier_dir: Path, progress: TuneProgress) -> dict[str, Any]:
+    """Start ``progress`` with the earlier trial's rows; return ``trial.json``'s ``warm_start`` entry."""
+    earlier = json.loads((earlier_dir / "trial.json").read_text())
+    rows = pd.read_csv(earlier_dir / "progress.csv")
+    progress.rows = rows[[c for c in PROGRESS_COLUMNS if c in rows.columns]].to_dict("records")
+    return {
+        "sweep": spec.warm_start,
+        "agent_steps": int(earlier["trained_agent_steps"]),
+        "train_seconds": earlier.get("train_seconds"),
+        "commit": earlier.get("commit"),
+    }
+
+
 def train_and_evaluate(
     trial: dict[str, Any],
     output: Path,
@@ -272,27 +285,27 @@ def train_and_evaluate(
     probe_writable(output, room_bytes=1 << 20)
     start = time.perf_counter()
     model: LatentSwarmPPO | IndependentRecurrentPPO
+    earlier_dir = Path(spec.warm_start) / "trials" / trial["trial_id"] if spec.warm_start is not None else None
     if variant == "independent":
+        if earlier_dir is not None:
+            warm_started = _warm_start_record(spec, earlier_dir, progress)
         independent = train_independent_ppo(
-            env, preset.total_timesteps, seed=train_seed, device=device, callback=progress, **preset.independent_ppo_kwargs()
+            env,
+            preset.total_timesteps,
+            seed=warm_start_seed(train_seed, depth),
+            device=device,
+            callback=progress,
+            continue_from=None if earlier_dir is None else earlier_dir / "model.zip",
+            **preset.independent_ppo_kwargs(),
         )
         model, trained_steps, trained_on = independent, independent.model.num_timesteps, independent.model.device
     else:
         if latest is not None:
             latent = LatentSwarmPPO.load_checkpoint(latest, env=env, device=device)
-        elif spec.warm_start is not None:
-            earlier_dir = Path(spec.warm_start) / "trials" / trial["trial_id"]
+        elif earlier_dir is not None:
             latent = LatentSwarmPPO.load(earlier_dir / "model.zip", env=env, device=device)
             latent.set_random_seed(warm_start_seed(train_seed, depth))
-            earlier = json.loads((earlier_dir / "trial.json").read_text())
-            warm_started = {
-                "sweep": spec.warm_start,
-                "agent_steps": int(latent.num_timesteps),
-                "train_seconds": earlier.get("train_seconds"),
-                "commit": earlier.get("commit"),
-            }
-            rows = pd.read_csv(earlier_dir / "progress.csv")
-            progress.rows = rows[[c for c in PROGRESS_COLUMNS if c in rows.columns]].to_dict("records")
+            warm_started = _warm_start_record(spec, earlier_dir, progress)
         else:
             latent = preset.make_model(env, seed=train_seed, device=device, **variant_algo_kwargs(variant, preset.algo_kwargs))
         per_update = preset.agent_steps_per_update

@@ -25,16 +25,14 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
-from sb3_latentswarm import LatentSwarmPPO
-from sb3_latentswarm.baselines import RandomPlanner
-from sb3_latentswarm.callbacks import RolloutProgressBarCallback
-from sb3_latentswarm.evaluation import CONDITIONS, evaluate, evaluate_conditions, summarize, to_markdown
-from sb3_latentswarm.experiments.trial import EVAL_SEED_BASE
 from sb3_latentswarm.presets import get_preset
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 ROOT = Path(__file__).resolve().parent.parent
 COORDINATION = ROOT / "docs" / "results" / "coordination"
@@ -111,7 +109,15 @@ def cpu_seconds() -> float:
 
 
 def main() -> None:
-    args = parse_args()
+    args = parse_args()  # before the imports: --help and bad arguments answer without loading torch
+    import pandas as pd
+
+    from sb3_latentswarm import LatentSwarmPPO
+    from sb3_latentswarm.baselines import RandomPlanner
+    from sb3_latentswarm.callbacks import RolloutProgressBarCallback
+    from sb3_latentswarm.evaluation import CONDITIONS, evaluate, evaluate_conditions, summarize, to_markdown
+    from sb3_latentswarm.experiments.trial import EVAL_SEED_BASE
+
     start_wall, start_cpu = time.perf_counter(), cpu_seconds()
     held_out = dict(seed=EVAL_SEED_BASE, deterministic=False)  # sampled actions: the paper's protocol (Sec. III-D)
 

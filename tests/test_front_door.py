@@ -151,6 +151,34 @@ def test_sb3_policy_kwargs_get_the_valid_names():
     assert "Valid policy_kwargs are: latent_dim, map_dim" in message
 
 
+@pytest.mark.parametrize("name", ["MultiInputPolicy", "MlpPolicy", "MultiInputLstmPolicy", "latentswarmpolicy"])
+def test_an_sb3_policy_name_gets_an_error_naming_the_supported_policy(name):
+    from sb3_latentswarm import LatentSwarmPPO, make_vec_env
+    from sb3_latentswarm.presets import get_preset
+
+    env = make_vec_env(1, config=get_preset("smoke").config, seed=0)
+    expected = f"LatentSwarmPPO has no policy '{name}': the only one it supports is 'LatentSwarmPolicy'"
+    with pytest.raises(ValueError, match=expected):
+        LatentSwarmPPO(name, env, n_steps=20, chunk_length=5, batch_size=30)
+
+
+def test_an_sb3_policy_class_is_refused_before_it_is_built():
+    from stable_baselines3.common.policies import MultiInputActorCriticPolicy
+
+    from sb3_latentswarm import LatentSwarmPolicy, LatentSwarmPPO, make_vec_env
+    from sb3_latentswarm.presets import get_preset
+
+    env = make_vec_env(1, config=get_preset("smoke").config, seed=0)
+    with pytest.raises(TypeError, match="policy must be 'LatentSwarmPolicy' or a subclass of LatentSwarmPolicy, got <class"):
+        LatentSwarmPPO(MultiInputActorCriticPolicy, env, n_steps=20, chunk_length=5, batch_size=30)
+
+    class WiderCritic(LatentSwarmPolicy):
+        pass
+
+    model = LatentSwarmPPO(WiderCritic, env, n_steps=20, chunk_length=5, batch_size=30)
+    assert type(model.policy) is WiderCritic
+
+
 @pytest.mark.slow  # trains and loads two committed models: about 10 s unloaded, minutes on a loaded machine
 def test_the_demo_script_runs_and_reads_its_tables(tmp_path):
     result = subprocess.run(

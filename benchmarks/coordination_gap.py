@@ -20,14 +20,31 @@ import argparse
 from dataclasses import dataclass
 from pathlib import Path
 
-import pandas as pd
-
-from sb3_latentswarm.baselines import COORDINATED_PLANNERS, MESSAGE_FREE_PLANNERS
 from sb3_latentswarm.cli import parse_overrides
 from sb3_latentswarm.common.atomic import write_text
 from sb3_latentswarm.config import SwarmConfig
-from sb3_latentswarm.evaluation import evaluate
 from sb3_latentswarm.presets import PRESETS, get_preset, override_targets
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--preset", default="coordination", choices=sorted(PRESETS))
+    parser.add_argument("--horizons", type=int, nargs="+", default=[60, 80, 100, 120])
+    parser.add_argument("--episodes", type=int, default=50)
+    parser.add_argument("--seed", type=int, default=10_000, help="first held-out episode seed")
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                        help="replace a SwarmConfig field of the preset (repeatable), e.g. --set n_agents=5")
+    parser.add_argument("--output", default=None, help="also write the header and table to this markdown file")
+    return parser
+
+
+if __name__ == "__main__":  # --help and argument errors answer here, before the imports below load torch
+    build_parser().parse_args()
+
+import pandas as pd  # noqa: E402
+
+from sb3_latentswarm.baselines import COORDINATED_PLANNERS, MESSAGE_FREE_PLANNERS  # noqa: E402
+from sb3_latentswarm.evaluation import evaluate  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -78,14 +95,7 @@ def to_markdown(table: pd.DataFrame, horizons: list[int]) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--preset", default="coordination", choices=sorted(PRESETS))
-    parser.add_argument("--horizons", type=int, nargs="+", default=[60, 80, 100, 120])
-    parser.add_argument("--episodes", type=int, default=50)
-    parser.add_argument("--seed", type=int, default=10_000, help="first held-out episode seed")
-    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
-                        help="replace a SwarmConfig field of the preset (repeatable), e.g. --set n_agents=5")
-    parser.add_argument("--output", default=None, help="also write the header and table to this markdown file")
+    parser = build_parser()
     args = parser.parse_args()
     if args.episodes < 2:
         parser.error(f"--episodes must be >= 2 (the table shows a std), got {args.episodes}")

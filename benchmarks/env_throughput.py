@@ -20,8 +20,24 @@ import time
 import numpy as np
 
 from sb3_latentswarm.config import SwarmConfig
-from sb3_latentswarm.envs import SwarmReconEnv, make_vec_env
 from sb3_latentswarm.presets import get_preset
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--supersuit-steps", type=int, default=200, help="vec steps of the SuperSuit backend per cell")
+    parser.add_argument("--batched-steps", type=int, default=2000, help="vec steps of the batched backend per cell")
+    parser.add_argument("--blocks", type=int, default=4, help="alternating timing blocks per cell")
+    parser.add_argument("--raw-steps", type=int, default=5000, help="swarm steps of the raw env (0 skips it)")
+    parser.add_argument("--swarms", type=int, nargs="+", default=[16, 40])
+    parser.add_argument("--seed", type=int, default=0)
+    return parser
+
+
+if __name__ == "__main__":  # --help and argument errors answer here, before the imports below load torch
+    build_parser().parse_args()
+
+from sb3_latentswarm.envs import SwarmReconEnv, make_vec_env  # noqa: E402
 
 
 def raw_env_steps_per_second(config: SwarmConfig, steps: int, seed: int) -> tuple[float, int]:
@@ -85,13 +101,7 @@ def compare(config: SwarmConfig, n_envs: int, supersuit_steps: int, batched_step
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--supersuit-steps", type=int, default=200, help="vec steps of the SuperSuit backend per cell")
-    parser.add_argument("--batched-steps", type=int, default=2000, help="vec steps of the batched backend per cell")
-    parser.add_argument("--blocks", type=int, default=4, help="alternating timing blocks per cell")
-    parser.add_argument("--raw-steps", type=int, default=5000, help="swarm steps of the raw env (0 skips it)")
-    parser.add_argument("--swarms", type=int, nargs="+", default=[16, 40])
-    parser.add_argument("--seed", type=int, default=0)
+    parser = build_parser()
     args = parser.parse_args()
     if min(args.supersuit_steps, args.batched_steps, args.blocks, *args.swarms) < 1 or args.raw_steps < 0:
         parser.error("step counts, --blocks and --swarms must be >= 1 (--raw-steps >= 0)")

@@ -19,11 +19,24 @@ import time
 import types
 from pathlib import Path
 
-import pandas as pd
-import torch as th
 
-from sb3_latentswarm import LatentSwarmPPO
-from sb3_latentswarm.evaluation import HELD_OUT_SEED, evaluate
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--baseline-commit", default="7559e37", help="commit of the old evaluation.py")
+    parser.add_argument("--episodes", type=int, default=32)
+    parser.add_argument("--repeats", type=int, default=3, help="old / new blocks, alternating")
+    parser.add_argument("--sampled", action="store_true", help="sampled actions (default: mean actions)")
+    return parser
+
+
+if __name__ == "__main__":  # --help and argument errors answer here, before the imports below load torch
+    build_parser().parse_args()
+
+import pandas as pd  # noqa: E402
+import torch as th  # noqa: E402
+
+from sb3_latentswarm import LatentSwarmPPO  # noqa: E402
+from sb3_latentswarm.evaluation import HELD_OUT_SEED, evaluate  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = ROOT / "docs/results/coordination/trials/proposed-seed0/model.zip"
@@ -42,11 +55,7 @@ def load_old_evaluation(commit: str) -> types.ModuleType:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--baseline-commit", default="7559e37", help="commit of the old evaluation.py")
-    parser.add_argument("--episodes", type=int, default=32)
-    parser.add_argument("--repeats", type=int, default=3, help="old / new blocks, alternating")
-    parser.add_argument("--sampled", action="store_true", help="sampled actions (default: mean actions)")
+    parser = build_parser()
     args = parser.parse_args()
     th.set_num_threads(1)
     old = load_old_evaluation(args.baseline_commit)

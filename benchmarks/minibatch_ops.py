@@ -45,12 +45,31 @@ import tempfile
 import time
 from typing import Any
 
-import torch as th
-from torch.overrides import TorchFunctionMode
-from torch.utils._python_dispatch import TorchDispatchMode
-
-from sb3_latentswarm import LatentSwarmPPO, make_vec_env
 from sb3_latentswarm.presets import PRESETS, get_preset
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--preset", default="coordination", choices=sorted(PRESETS))
+    parser.add_argument("--autocast", nargs="+", default=["preset"], choices=["preset", "none", "bf16"],
+                        help="variants: the preset's setting (default), float32, bf16")
+    parser.add_argument("--minibatches", type=int, default=2, help="minibatches per train() call (one epoch)")
+    parser.add_argument("--repeats", type=int, default=3, help="timed train() calls per variant (median)")
+    parser.add_argument("--compare", metavar="REV", help="git revision whose package is measured against the work tree")
+    parser.add_argument("--rounds", type=int, default=2, help="with --compare: alternating old/new subprocess rounds")
+    parser.add_argument("--sites", action="store_true", help="list the host syncs by call site")
+    parser.add_argument("--json", action="store_true", help="print the rows as one JSON line (used by --compare)")
+    return parser
+
+
+if __name__ == "__main__":  # --help and argument errors answer here, before the imports below load torch
+    build_parser().parse_args()
+
+import torch as th  # noqa: E402
+from torch.overrides import TorchFunctionMode  # noqa: E402
+from torch.utils._python_dispatch import TorchDispatchMode  # noqa: E402
+
+from sb3_latentswarm import LatentSwarmPPO, make_vec_env  # noqa: E402
 
 SYNC_METHODS = ("item", "__float__", "__bool__", "__int__", "__index__", "tolist", "cpu", "numpy")
 """Tensor methods that hand a tensor's value to the host."""
@@ -220,16 +239,7 @@ def compare(args: argparse.Namespace) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--preset", default="coordination", choices=sorted(PRESETS))
-    parser.add_argument("--autocast", nargs="+", default=["preset"], choices=["preset", "none", "bf16"],
-                        help="variants: the preset's setting (default), float32, bf16")
-    parser.add_argument("--minibatches", type=int, default=2, help="minibatches per train() call (one epoch)")
-    parser.add_argument("--repeats", type=int, default=3, help="timed train() calls per variant (median)")
-    parser.add_argument("--compare", metavar="REV", help="git revision whose package is measured against the work tree")
-    parser.add_argument("--rounds", type=int, default=2, help="with --compare: alternating old/new subprocess rounds")
-    parser.add_argument("--sites", action="store_true", help="list the host syncs by call site")
-    parser.add_argument("--json", action="store_true", help="print the rows as one JSON line (used by --compare)")
+    parser = build_parser()
     args = parser.parse_args()
     th.set_num_threads(1)
     if args.compare:

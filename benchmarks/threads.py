@@ -13,9 +13,21 @@ import argparse
 import os
 import time
 
-import torch as th
 
-from sb3_latentswarm import LatentSwarmPPO, SwarmConfig, make_vec_env
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--updates", type=int, default=5, help="rollout/update iterations timed per measurement")
+    parser.add_argument("--repeats", type=int, default=3)
+    return parser
+
+
+if __name__ == "__main__":  # --help and argument errors answer here, before the imports below load torch
+    build_parser().parse_args()
+
+import torch as th  # noqa: E402
+
+from sb3_latentswarm import LatentSwarmPPO, SwarmConfig, make_vec_env  # noqa: E402
 
 
 def make_model() -> LatentSwarmPPO:
@@ -27,10 +39,7 @@ def make_model() -> LatentSwarmPPO:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
-    parser.add_argument("--updates", type=int, default=5, help="rollout/update iterations timed per measurement")
-    parser.add_argument("--repeats", type=int, default=3)
+    parser = build_parser()
     args = parser.parse_args()
     model = make_model()
     per_update = model.n_steps * model.n_envs

@@ -28,14 +28,38 @@ import argparse
 import os
 import time
 
-import torch as th
-from sb3_contrib import RecurrentPPO
-
-from sb3_latentswarm import LatentSwarmPPO, SwarmConfig
-from sb3_latentswarm.envs import make_vec_env
-from sb3_latentswarm.envs.vec_env import BACKENDS
 from sb3_latentswarm.presets import PRESETS, get_preset
-from sb3_latentswarm.threads import set_torch_threads
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument(
+        "--hidden", type=int, nargs="+", default=[64, 512], help="latent size d (ours) and LSTM hidden size (theirs)"
+    )
+    parser.add_argument("--n-envs", type=int, default=8)
+    parser.add_argument("--n-steps", type=int, default=128)
+    parser.add_argument("--chunk-length", type=int, default=32)
+    parser.add_argument("--n-epochs", type=int, default=4)
+    parser.add_argument("--blocks", type=int, default=2, help="alternating timing blocks per model")
+    parser.add_argument("--updates-per-block", type=int, default=1, help="updates per model per block")
+    parser.add_argument("--iterations", type=int, default=3, help="updates timed per backend (--backends, --compile)")
+    parser.add_argument("--threads", type=int, default=0, help="torch threads (0: the package default)")
+    parser.add_argument("--backends", action="store_true", help="compare the vec env backends on a preset's update")
+    parser.add_argument("--compile", action="store_true", help="compare the eager and the compiled latent step")
+    parser.add_argument("--preset", default="fast", choices=sorted(PRESETS), help="preset of --backends and --compile")
+    return parser
+
+
+if __name__ == "__main__":  # --help and argument errors answer here, before the imports below load torch
+    build_parser().parse_args()
+
+import torch as th  # noqa: E402
+from sb3_contrib import RecurrentPPO  # noqa: E402
+
+from sb3_latentswarm import LatentSwarmPPO, SwarmConfig  # noqa: E402
+from sb3_latentswarm.envs import make_vec_env  # noqa: E402
+from sb3_latentswarm.envs.vec_env import BACKENDS  # noqa: E402
+from sb3_latentswarm.threads import set_torch_threads  # noqa: E402
 
 
 class LearnTimer:
@@ -198,21 +222,7 @@ def compare_compiled(preset_name: str, iterations: int) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument(
-        "--hidden", type=int, nargs="+", default=[64, 512], help="latent size d (ours) and LSTM hidden size (theirs)"
-    )
-    parser.add_argument("--n-envs", type=int, default=8)
-    parser.add_argument("--n-steps", type=int, default=128)
-    parser.add_argument("--chunk-length", type=int, default=32)
-    parser.add_argument("--n-epochs", type=int, default=4)
-    parser.add_argument("--blocks", type=int, default=2, help="alternating timing blocks per model")
-    parser.add_argument("--updates-per-block", type=int, default=1, help="updates per model per block")
-    parser.add_argument("--iterations", type=int, default=3, help="updates timed per backend (--backends, --compile)")
-    parser.add_argument("--threads", type=int, default=0, help="torch threads (0: the package default)")
-    parser.add_argument("--backends", action="store_true", help="compare the vec env backends on a preset's update")
-    parser.add_argument("--compile", action="store_true", help="compare the eager and the compiled latent step")
-    parser.add_argument("--preset", default="fast", choices=sorted(PRESETS), help="preset of --backends and --compile")
+    parser = build_parser()
     args = parser.parse_args()
     counts = [*args.hidden, args.n_envs, args.n_steps, args.chunk_length, args.n_epochs, args.blocks, args.updates_per_block]
     if min(counts) < 1 or args.iterations < 1:

@@ -15,10 +15,27 @@ import multiprocessing as mp
 import time
 from pathlib import Path
 
-import pandas as pd
-import torch as th
 
-from sb3_latentswarm.evaluation import to_markdown
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--preset", default="fast")
+    parser.add_argument("--updates", type=int, default=40)
+    parser.add_argument("--window", type=int, default=10, help="updates averaged at the end")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--jobs", type=int, default=2, help="option sets trained side by side (one thread each)")
+    parser.add_argument("--output", default="runs/training_options")
+    parser.add_argument("--summarize-only", action="store_true", help="only tabulate the logs already in --output")
+    parser.add_argument("--sets", type=int, nargs="*", default=None, help="indices of OPTION_SETS to run (default: all)")
+    return parser
+
+
+if __name__ == "__main__":  # --help and argument errors answer here, before the imports below load torch
+    build_parser().parse_args()
+
+import pandas as pd  # noqa: E402
+import torch as th  # noqa: E402
+
+from sb3_latentswarm.evaluation import to_markdown  # noqa: E402
 
 PAPER_ALGO = dict(normalize_value=False, value_loss="mse", grad_clip="global")
 MAPPO_ALGO = dict(normalize_value=True, value_loss="huber", grad_clip="per_group")
@@ -65,15 +82,7 @@ def train_one(job: tuple[str, str, int, int, str]) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--preset", default="fast")
-    parser.add_argument("--updates", type=int, default=40)
-    parser.add_argument("--window", type=int, default=10, help="updates averaged at the end")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--jobs", type=int, default=2, help="option sets trained side by side (one thread each)")
-    parser.add_argument("--output", default="runs/training_options")
-    parser.add_argument("--summarize-only", action="store_true", help="only tabulate the logs already in --output")
-    parser.add_argument("--sets", type=int, nargs="*", default=None, help="indices of OPTION_SETS to run (default: all)")
+    parser = build_parser()
     args = parser.parse_args()
     folder = Path(args.output) / args.preset
     names = list(OPTION_SETS) if args.sets is None else [list(OPTION_SETS)[i] for i in args.sets]

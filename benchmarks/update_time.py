@@ -31,13 +31,36 @@ from collections import Counter
 from collections.abc import Iterator
 from typing import Any
 
-import torch as th
-
-from sb3_latentswarm import LatentSwarmPPO
 from sb3_latentswarm.common.atomic import write_text
-from sb3_latentswarm.envs.vec_env import BACKENDS
 from sb3_latentswarm.presets import PRESETS, get_preset
-from sb3_latentswarm.threads import set_torch_threads
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--preset", default="paper", choices=sorted(PRESETS))
+    parser.add_argument("--device", default="cpu", help="torch device: cpu, cuda, cuda:1")
+    parser.add_argument("--updates", type=int, default=1, help="updates timed (default 1)")
+    parser.add_argument("--warmup", type=int, default=1, help="updates run first, not timed (default 1; 0: no sync count)")
+    parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: the package default of one)")
+    parser.add_argument("--backend", default="batched", help="make_vec_env backend: batched or supersuit")
+    parser.add_argument("--no-profile", action="store_true", help="do not count host syncs in the warm-up update")
+    parser.add_argument(
+        "--compile", action="store_true", help="torch.compile the policy's latent step (compile_latent_step=True)"
+    )
+    parser.add_argument("--autocast", default=None, help="passed as LatentSwarmPPO(autocast=...), where supported")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", default=None, metavar="PATH", help="also write the results as JSON to PATH")
+    return parser
+
+
+if __name__ == "__main__":  # --help and argument errors answer here, before the imports below load torch
+    build_parser().parse_args()
+
+import torch as th  # noqa: E402
+
+from sb3_latentswarm import LatentSwarmPPO  # noqa: E402
+from sb3_latentswarm.envs.vec_env import BACKENDS  # noqa: E402
+from sb3_latentswarm.threads import set_torch_threads  # noqa: E402
 
 RANGES = ("update", "rollout", "env", "policy", "rollout_other", "train", "train_forward", "backward", "optimizer")
 """Keys of ``seconds`` and ``cpu_seconds`` in the output (per update; see ``docs/benchmarks.md``)."""
@@ -199,26 +222,8 @@ def peak_memory(device: th.device) -> tuple[int, str]:
     return int(rss), "peak resident set size of the process (resource.getrusage), whole run"
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--preset", default="paper", choices=sorted(PRESETS))
-    parser.add_argument("--device", default="cpu", help="torch device: cpu, cuda, cuda:1")
-    parser.add_argument("--updates", type=int, default=1, help="updates timed (default 1)")
-    parser.add_argument("--warmup", type=int, default=1, help="updates run first, not timed (default 1; 0: no sync count)")
-    parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: the package default of one)")
-    parser.add_argument("--backend", default="batched", choices=BACKENDS, help="make_vec_env backend")
-    parser.add_argument("--no-profile", action="store_true", help="do not count host syncs in the warm-up update")
-    parser.add_argument(
-        "--compile", action="store_true", help="torch.compile the policy's latent step (compile_latent_step=True)"
-    )
-    parser.add_argument("--autocast", default=None, help="passed as LatentSwarmPPO(autocast=...), where supported")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--json", default=None, metavar="PATH", help="also write the results as JSON to PATH")
-    return parser
-
-
 def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> th.device:
-    """Refuse bad arguments before any work: counts, the device, an ``--autocast`` this version does not have."""
+    """Refuse bad arguments before any work: counts, the device, the backend, an ``--autocast`` this version lacks."""
     if args.updates < 1 or args.warmup < 0 or args.threads < 0:
         parser.error(f"--updates must be >= 1, --warmup and --threads >= 0 (got {args.updates}, {args.warmup}, "
                      f"{args.threads})")
@@ -228,6 +233,8 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> th.
         parser.error(f"--device {args.device}: {error}")
     if device.type == "cuda" and not th.cuda.is_available():
         parser.error(f"--device {args.device}: CUDA is not available on this machine (torch {th.__version__})")
+    if args.backend not in BACKENDS:
+        parser.error(f"--backend must be one of {', '.join(BACKENDS)}, got {args.backend!r}")
     if device.type not in ("cpu", "cuda"):
         parser.error(f"--device must be cpu or cuda[:N], got {args.device}")
     if args.autocast is not None and "autocast" not in inspect.signature(LatentSwarmPPO.__init__).parameters:

@@ -12,10 +12,6 @@ import argparse
 import time
 from pathlib import Path
 
-import torch as th
-from stable_baselines3.common.logger import configure
-
-from sb3_latentswarm import LatentSwarmPPO
 from sb3_latentswarm.presets import PRESETS, get_preset
 
 
@@ -27,7 +23,12 @@ def main() -> None:
     parser.add_argument("--total-timesteps", type=int, default=None, help="extra agent-steps (default: the preset's)")
     parser.add_argument("--env-seed", type=int, default=1, help="seed of the new env copies")
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: the package default, one)")
-    args = parser.parse_args()
+    args = parser.parse_args()  # before the imports: --help and bad arguments answer without loading torch
+    import torch as th
+    from stable_baselines3.common.logger import configure
+
+    from sb3_latentswarm import LatentSwarmPPO
+
     if args.threads:
         th.set_num_threads(args.threads)
 

@@ -4,13 +4,13 @@
    launched from one corner, T = 30) with the training options the presets use (MAPPO's ValueNorm, Huber value loss,
    per-group clipping, the squashed actor), then evaluates it with its links (``proposed``) and with every link cut
    (``no_comm``), next to a random swarm; the table says how much cutting the links costs on this tiny task.
-2. Evaluates the committed ``coordination`` model (``docs/results/coordination/trials/proposed-seed0``: a corner
-   launch and a tight horizon, where coordination pays) under the paper's five test-time conditions (Table I), next
-   to the same learner trained with every link down (``no_comm-seed0``).
+2. Evaluates the committed ``coordination`` model (``docs/results/coordination_round2/trials/proposed-seed0``, the
+   second round's: a corner launch and a tight horizon, where coordination pays) under the paper's five test-time
+   conditions (Table I), next to the same learner trained with every link down (``no_comm-seed0``).
 
 Both use sampled actions (the paper's test-time protocol, Sec. III-D) on held-out episode seeds (the sweep's, from
 1,000,000: no training episode used them), then print a three-line reading computed from the two tables and where
-the full evidence is (``docs/results.md``: three training seeds, 100 held-out episodes per cell).
+the full evidence is (``docs/results.md``: five training seeds, 100 held-out episodes per cell).
 
     python examples/demo.py                         # about two minutes on one CPU thread
     python examples/demo.py --total-timesteps 2000 --episodes 2 --coordination-episodes 2   # seconds: a smoke run
@@ -25,19 +25,17 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
-from sb3_latentswarm import LatentSwarmPPO
-from sb3_latentswarm.baselines import RandomPlanner
-from sb3_latentswarm.callbacks import RolloutProgressBarCallback
-from sb3_latentswarm.evaluation import CONDITIONS, evaluate, evaluate_conditions, summarize, to_markdown
-from sb3_latentswarm.experiments.trial import EVAL_SEED_BASE
 from sb3_latentswarm.presets import get_preset
 
+if TYPE_CHECKING:
+    import pandas as pd
+
 ROOT = Path(__file__).resolve().parent.parent
-COORDINATION = ROOT / "docs" / "results" / "coordination"
+COORDINATION = ROOT / "docs" / "results" / "coordination_round2"
 
 
 def option(default, help: str):  # noqa: A002 - argparse's name
@@ -111,7 +109,15 @@ def cpu_seconds() -> float:
 
 
 def main() -> None:
-    args = parse_args()
+    args = parse_args()  # before the imports: --help and bad arguments answer without loading torch
+    import pandas as pd
+
+    from sb3_latentswarm import LatentSwarmPPO
+    from sb3_latentswarm.baselines import RandomPlanner
+    from sb3_latentswarm.callbacks import RolloutProgressBarCallback
+    from sb3_latentswarm.evaluation import CONDITIONS, evaluate, evaluate_conditions, summarize, to_markdown
+    from sb3_latentswarm.experiments.trial import EVAL_SEED_BASE
+
     start_wall, start_cpu = time.perf_counter(), cpu_seconds()
     held_out = dict(seed=EVAL_SEED_BASE, deterministic=False)  # sampled actions: the paper's protocol (Sec. III-D)
 
@@ -166,9 +172,9 @@ def main() -> None:
         f"{gap_text(learner_gap)})."
     )
     print(
-        "- One training seed and a few episodes here; the full evidence (3 training seeds x 100 held-out episodes per "
+        "- One training seed and a few episodes here; the full evidence (5 training seeds x 100 held-out episodes per "
         "cell, across-seed intervals, the paper's five claims as targets) is docs/results.md and "
-        "docs/results/coordination/claims.md."
+        "docs/results/coordination_round2/claims.md."
     )
     print(f"\nDemo time: {time.perf_counter() - start_wall:.0f} s wall, {cpu_seconds() - start_cpu:.0f} s CPU")
 

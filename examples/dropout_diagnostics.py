@@ -22,24 +22,46 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
-import torch as th
 
-from sb3_latentswarm import LatentSwarmPPO
-from sb3_latentswarm.evaluation import (
+SUBSTITUTE_CONDITIONS = ("proposed", "no_predictor", "hold_last", "own_message")
+"""The conditions that differ only in the dropout substitute (for a model trained with the predictor)."""
+HELD_OUT_SEED = 1_000_000
+"""The first episode seed by default: :data:`~sb3_latentswarm.evaluation.HELD_OUT_SEED`, a literal: --help loads no torch."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--model", required=True, help="saved LatentSwarmPPO (evaluated on its training config)")
+    parser.add_argument("--conditions", nargs="+", default=list(SUBSTITUTE_CONDITIONS), help="test-time conditions")
+    parser.add_argument("--episodes", type=int, default=20, help="held-out episodes per condition")
+    parser.add_argument("--eval-seed", type=int, default=HELD_OUT_SEED, help="episode k uses env seed eval_seed + k")
+    parser.add_argument("--actions", choices=("sampled", "mean"), default="sampled",
+                        help="sampled (the paper's protocol, default) or mean actions")
+    parser.add_argument("--p-fail", type=float, default=None, help="link failure probability (default: the training one)")
+    parser.add_argument("--mean-outage-steps", type=float, default=None,
+                        help="mean Gilbert-Elliott outage length in steps (default: the training one)")
+    parser.add_argument("--output", required=True, help="result folder")
+    return parser
+
+
+if __name__ == "__main__":  # --help and argument errors answer here, before the imports below load torch
+    build_parser().parse_args()
+
+import pandas as pd  # noqa: E402
+import torch as th  # noqa: E402
+
+from sb3_latentswarm import LatentSwarmPPO  # noqa: E402
+from sb3_latentswarm.evaluation import (  # noqa: E402
     CONDITION_LABELS,
     DEPTH_BINS,
     DEPTH_COLUMNS,
-    HELD_OUT_SEED,
     check_condition,
     evaluate,
     seed_range,
     to_markdown,
 )
-from sb3_latentswarm.experiments.run_record import git_commit, write_run_record
+from sb3_latentswarm.experiments.run_record import git_commit, write_run_record  # noqa: E402
 
-SUBSTITUTE_CONDITIONS = ("proposed", "no_predictor", "hold_last", "own_message")
-"""The conditions that differ only in the dropout substitute (for a model trained with the predictor)."""
 TABLE_COLUMNS = ("dropout_share", "dropout_run_mean", "pred_error_dropout", *DEPTH_COLUMNS, "coverage", "collisions")
 DEPTH_LABELS = [
     f"{low}" if low == high else (f"> {low - 1}" if np.isinf(high) else f"{low}-{high}") for low, high in DEPTH_BINS
@@ -80,17 +102,7 @@ def plot_error_by_depth(table: pd.DataFrame, path: Path, title: str) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--model", required=True, help="saved LatentSwarmPPO (evaluated on its training config)")
-    parser.add_argument("--conditions", nargs="+", default=list(SUBSTITUTE_CONDITIONS), help="test-time conditions")
-    parser.add_argument("--episodes", type=int, default=20, help="held-out episodes per condition")
-    parser.add_argument("--eval-seed", type=int, default=HELD_OUT_SEED, help="episode k uses env seed eval_seed + k")
-    parser.add_argument("--actions", choices=("sampled", "mean"), default="sampled",
-                        help="sampled (the paper's protocol, default) or mean actions")
-    parser.add_argument("--p-fail", type=float, default=None, help="link failure probability (default: the training one)")
-    parser.add_argument("--mean-outage-steps", type=float, default=None,
-                        help="mean Gilbert-Elliott outage length in steps (default: the training one)")
-    parser.add_argument("--output", required=True, help="result folder")
+    parser = build_parser()
     args = parser.parse_args()
     if not Path(args.model).exists():
         parser.error(f"--model: no file at {args.model}")

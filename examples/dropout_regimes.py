@@ -45,26 +45,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
-import torch as th
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from dropout_diagnostics import DEPTH_LABELS, summarize_diagnostics  # noqa: E402  (the sibling example's table)
-
-from sb3_latentswarm import LatentSwarmPPO, SwarmConfig  # noqa: E402
-from sb3_latentswarm.common.atomic import atomic_path, write_text  # noqa: E402
-from sb3_latentswarm.common.checks import check_float, check_int  # noqa: E402
-from sb3_latentswarm.evaluation import (  # noqa: E402
-    CONDITION_LABELS,
-    DEPTH_COLUMNS,
-    HELD_OUT_SEED,
-    check_condition,
-    evaluate,
-    seed_range,
-    to_markdown,
-)
-from sb3_latentswarm.experiments.aggregate import aggregate_scores  # noqa: E402
-from sb3_latentswarm.experiments.run_record import git_commit, write_run_record  # noqa: E402
 
 DEFAULT_MODELS = tuple(f"docs/results/actor_choice/models/squashed-seed{seed}.zip" for seed in range(3))
 """The committed squashed ``coordination`` models (``proposed`` learners, training seeds 0-2)."""
@@ -80,6 +60,52 @@ LEARNER_LABELS = {"zero_substitute": "Trained with zeros", "hold_last": "Trained
 """Figure and table labels of the trained-substitute learners' lines."""
 KEY_COLUMNS = ("model", "actions", "p_fail", "mean_outage", "condition")
 """The columns that name one cell of ``cells.csv``."""
+HELD_OUT_SEED = 1_000_000
+"""The first episode seed by default: :data:`~sb3_latentswarm.evaluation.HELD_OUT_SEED`, a literal: --help loads no torch."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--models", nargs="+", default=list(DEFAULT_MODELS),
+                        help="saved LatentSwarmPPO files, one per training seed (each evaluated on its training config)")
+    parser.add_argument("--conditions", nargs="+", default=list(REGIME_CONDITIONS),
+                        help="test-time conditions of the proposed models")
+    parser.add_argument("--learner-conditions", nargs="+", default=["proposed"],
+                        help="test-time conditions of models trained with another substitute (default: their own)")
+    parser.add_argument("--episodes", type=int, default=100, help="held-out episodes per cell and model")
+    parser.add_argument("--eval-seed", type=int, default=HELD_OUT_SEED, help="episode k uses env seed eval_seed + k")
+    parser.add_argument("--p-fail", type=float, nargs="+", default=list(P_FAILS), help="link failure probabilities")
+    parser.add_argument("--mean-outage", type=float, nargs="+", default=list(MEAN_OUTAGES),
+                        help="mean outage lengths in steps (1: Bernoulli draws; > 1: Gilbert-Elliott)")
+    parser.add_argument("--actions", choices=("sampled", "mean"), default="sampled",
+                        help="sampled (the paper's protocol, default) or mean actions")
+    parser.add_argument("--output", required=True, help="result folder (resumed if it holds cells.csv)")
+    return parser
+
+
+if __name__ == "__main__":  # --help and argument errors answer here, before the imports below load torch
+    build_parser().parse_args()
+
+import pandas as pd  # noqa: E402
+import torch as th  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from dropout_diagnostics import DEPTH_LABELS, summarize_diagnostics  # noqa: E402  (the sibling example's table)
+
+from sb3_latentswarm import LatentSwarmPPO, SwarmConfig  # noqa: E402
+from sb3_latentswarm.common.atomic import atomic_path, write_text  # noqa: E402
+from sb3_latentswarm.common.checks import check_float, check_int  # noqa: E402
+from sb3_latentswarm.evaluation import (  # noqa: E402
+    CONDITION_LABELS,
+    DEPTH_COLUMNS,
+    check_condition,
+    evaluate,
+    seed_range,
+    to_markdown,
+)
+from sb3_latentswarm.experiments.aggregate import aggregate_scores  # noqa: E402
+from sb3_latentswarm.experiments.run_record import git_commit, write_run_record  # noqa: E402
+
 METRICS = ("coverage", "collisions", "dropout_share", "dropout_run_mean", "pred_error_dropout", *DEPTH_COLUMNS)
 """Per-cell means over the episodes (NaN-ignoring for the error columns), aggregated across models."""
 CELL_COLUMNS = (*KEY_COLUMNS, "learner", "outage_model", "episodes", "eval_seed", *METRICS, "episodes_deepest", "seconds")
@@ -328,21 +354,7 @@ def plot_error_by_depth(summary: pd.DataFrame, conditions: tuple[str, ...], path
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--models", nargs="+", default=list(DEFAULT_MODELS),
-                        help="saved LatentSwarmPPO files, one per training seed (each evaluated on its training config)")
-    parser.add_argument("--conditions", nargs="+", default=list(REGIME_CONDITIONS),
-                        help="test-time conditions of the proposed models")
-    parser.add_argument("--learner-conditions", nargs="+", default=["proposed"],
-                        help="test-time conditions of models trained with another substitute (default: their own)")
-    parser.add_argument("--episodes", type=int, default=100, help="held-out episodes per cell and model")
-    parser.add_argument("--eval-seed", type=int, default=HELD_OUT_SEED, help="episode k uses env seed eval_seed + k")
-    parser.add_argument("--p-fail", type=float, nargs="+", default=list(P_FAILS), help="link failure probabilities")
-    parser.add_argument("--mean-outage", type=float, nargs="+", default=list(MEAN_OUTAGES),
-                        help="mean outage lengths in steps (1: Bernoulli draws; > 1: Gilbert-Elliott)")
-    parser.add_argument("--actions", choices=("sampled", "mean"), default="sampled",
-                        help="sampled (the paper's protocol, default) or mean actions")
-    parser.add_argument("--output", required=True, help="result folder (resumed if it holds cells.csv)")
+    parser = build_parser()
     args = parser.parse_args(argv)
     try:  # every argument is checked before a model is loaded or a file written
         check_int("--episodes", args.episodes, 1)

@@ -22,11 +22,31 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
-import torch as th
 
-from sb3_latentswarm import LatentSwarmPPO
-from sb3_latentswarm.evaluation import (
+from sb3_latentswarm.presets import PRESETS, get_preset
+
+ACTIONS = {"mean": True, "sampled": False}  # label -> deterministic
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--models", nargs="+", required=True, help="saved checkpoints of one run, in training order")
+    parser.add_argument("--preset", default="fast", choices=sorted(PRESETS), help="the preset the models trained on")
+    parser.add_argument("--episodes", type=int, default=100, help="episodes per condition, checkpoint and way of acting")
+    parser.add_argument("--seed", type=int, default=0, help="episode k uses env (and action-noise) seed seed + k")
+    parser.add_argument("--output", required=True, help="result folder")
+    parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: the package default, one)")
+    return parser
+
+
+if __name__ == "__main__":  # --help and argument errors answer here, before the imports below load torch
+    build_parser().parse_args()
+
+import pandas as pd  # noqa: E402
+import torch as th  # noqa: E402
+
+from sb3_latentswarm import LatentSwarmPPO  # noqa: E402
+from sb3_latentswarm.evaluation import (  # noqa: E402
     CONDITION_LABELS,
     CONDITIONS,
     COVERAGE_COLUMN,
@@ -34,10 +54,7 @@ from sb3_latentswarm.evaluation import (
     summarize,
     to_markdown,
 )
-from sb3_latentswarm.experiments.run_record import git_commit, write_run_record
-from sb3_latentswarm.presets import PRESETS, get_preset
-
-ACTIONS = {"mean": True, "sampled": False}  # label -> deterministic
+from sb3_latentswarm.experiments.run_record import git_commit, write_run_record  # noqa: E402
 
 
 def evaluate_checkpoints(models: list[str], config, episodes: int, seed: int) -> pd.DataFrame:
@@ -91,13 +108,7 @@ def plot(summary: pd.DataFrame, path: Path) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--models", nargs="+", required=True, help="saved checkpoints of one run, in training order")
-    parser.add_argument("--preset", default="fast", choices=sorted(PRESETS), help="the preset the models trained on")
-    parser.add_argument("--episodes", type=int, default=100, help="episodes per condition, checkpoint and way of acting")
-    parser.add_argument("--seed", type=int, default=0, help="episode k uses env (and action-noise) seed seed + k")
-    parser.add_argument("--output", required=True, help="result folder")
-    parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: the package default, one)")
+    parser = build_parser()
     args = parser.parse_args()
     missing = [path for path in args.models if not Path(path).exists()]
     if missing:

@@ -31,16 +31,33 @@ import json
 from collections.abc import Collection
 from pathlib import Path
 
-import pandas as pd
-
 from sb3_latentswarm.common.atomic import write_text
-from sb3_latentswarm.evaluation import seed_range, to_markdown
-from sb3_latentswarm.experiments.aggregate import aggregate_scores
-from sb3_latentswarm.experiments.report import plot_cells
-from sb3_latentswarm.experiments.trial import finished_trial_dirs
 
 ACTION_MODES = ("sampled", "mean")
 """``--actions`` choices; ``deterministic`` of ``evaluate`` is ``mode == "mean"``."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--sweep", required=True, help="a sweep output folder (with scores.csv and sweep.json)")
+    parser.add_argument("--base-cell", default="table1", help="the cell at the training config (Table I's conditions)")
+    parser.add_argument("--burst-cells", nargs="*", default=[], metavar="CELL=MEAN_OUTAGE_STEPS",
+                        help="cells with bursty outages, and their mean outage length")
+    parser.add_argument("--actions", nargs="+", choices=ACTION_MODES, default=list(ACTION_MODES),
+                        help="action modes, in the order reported (default: sampled, the paper's protocol, then mean)")
+    parser.add_argument("--output", default=None, help="folder for claims.md/csv (default: the sweep folder)")
+    return parser
+
+
+if __name__ == "__main__":  # --help and argument errors answer here, before the imports below load torch
+    build_parser().parse_args()
+
+import pandas as pd  # noqa: E402
+
+from sb3_latentswarm.evaluation import seed_range, to_markdown  # noqa: E402
+from sb3_latentswarm.experiments.aggregate import aggregate_scores  # noqa: E402
+from sb3_latentswarm.experiments.report import plot_cells  # noqa: E402
+from sb3_latentswarm.experiments.trial import finished_trial_dirs  # noqa: E402
 
 PAPER_COLLISIONS = 8.7
 """Collisions per episode of the paper's Proposed model (Table I, N = 3)."""
@@ -218,14 +235,7 @@ def claim_figures(
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--sweep", required=True, help="a sweep output folder (with scores.csv and sweep.json)")
-    parser.add_argument("--base-cell", default="table1", help="the cell at the training config (Table I's conditions)")
-    parser.add_argument("--burst-cells", nargs="*", default=[], metavar="CELL=MEAN_OUTAGE_STEPS",
-                        help="cells with bursty outages, and their mean outage length")
-    parser.add_argument("--actions", nargs="+", choices=ACTION_MODES, default=list(ACTION_MODES),
-                        help="action modes, in the order reported (default: sampled, the paper's protocol, then mean)")
-    parser.add_argument("--output", default=None, help="folder for claims.md/csv (default: the sweep folder)")
+    parser = build_parser()
     args = parser.parse_args(argv)
     sweep = Path(args.sweep)
     if not (sweep / "scores.csv").exists():

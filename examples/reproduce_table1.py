@@ -34,37 +34,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
-import torch as th
 
-from sb3_latentswarm import LatentSwarmPPO
-from sb3_latentswarm.baselines import (
-    FrontierPlanner,
-    IndependentRecurrentPPO,
-    LawnmowerPlanner,
-    RandomPlanner,
-    train_independent_ppo,
-)
 from sb3_latentswarm.common.atomic import atomic_path, probe_writable, write_json, write_text
-from sb3_latentswarm.evaluation import (
-    CONDITION_LABELS,
-    HELD_OUT_SEED,
-    PAPER_TABLE1_P_FAIL,
-    check_held_out,
-    evaluate,
-    evaluate_conditions,
-    evaluate_p_fail_sweep,
-    seed_range,
-    side_by_side,
-    summarize,
-    to_markdown,
-)
-from sb3_latentswarm.experiments.run_record import git_commit, write_run_record
 from sb3_latentswarm.presets import PRESETS, get_preset
 
 ACTION_MODES = ("both", "sampled", "mean")
 DETERMINISTIC = {"sampled": False, "mean": True}
 """``evaluate(deterministic=...)`` of each action mode."""
+HELD_OUT_SEED = 1_000_000
+"""The first episode seed by default: :data:`~sb3_latentswarm.evaluation.HELD_OUT_SEED`, a literal: --help loads no torch."""
 
 
 def option(default, help: str):  # noqa: A002 - argparse's name
@@ -110,6 +88,35 @@ def parse_args() -> Args:
             kind = int if spec.type in ("int", "int | None") else str
             parser.add_argument(flag, type=kind, default=spec.default, help=text)
     return Args(**vars(parser.parse_args()))
+
+
+if __name__ == "__main__":  # --help and argument errors answer here, before the imports below load torch
+    parse_args()
+
+import pandas as pd  # noqa: E402
+import torch as th  # noqa: E402
+
+from sb3_latentswarm import LatentSwarmPPO  # noqa: E402
+from sb3_latentswarm.baselines import (  # noqa: E402
+    FrontierPlanner,
+    IndependentRecurrentPPO,
+    LawnmowerPlanner,
+    RandomPlanner,
+    train_independent_ppo,
+)
+from sb3_latentswarm.evaluation import (  # noqa: E402
+    CONDITION_LABELS,
+    PAPER_TABLE1_P_FAIL,
+    check_held_out,
+    evaluate,
+    evaluate_conditions,
+    evaluate_p_fail_sweep,
+    seed_range,
+    side_by_side,
+    summarize,
+    to_markdown,
+)
+from sb3_latentswarm.experiments.run_record import git_commit, write_run_record  # noqa: E402
 
 
 def plot_curves(curves: dict, labels: dict, path: Path, title: str) -> None:

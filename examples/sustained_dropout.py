@@ -16,12 +16,6 @@ import argparse
 import time
 from pathlib import Path
 
-import pandas as pd
-import torch as th
-
-from sb3_latentswarm import LatentSwarmPPO
-from sb3_latentswarm.evaluation import evaluate, summarize, to_markdown
-from sb3_latentswarm.experiments.run_record import git_commit, write_run_record
 from sb3_latentswarm.presets import PRESETS, get_preset
 
 SUBSTITUTES = {"proposed": "prediction", "no_predictor": "zero vector", "no_memory": "prediction, memory zeroed"}
@@ -35,7 +29,14 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="episode k uses env (and action-noise) seed seed + k")
     parser.add_argument("--output", required=True, help="result folder")
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: the package default, one)")
-    args = parser.parse_args()
+    args = parser.parse_args()  # before the imports: --help and bad arguments answer without loading torch
+    import pandas as pd
+    import torch as th
+
+    from sb3_latentswarm import LatentSwarmPPO
+    from sb3_latentswarm.evaluation import evaluate, summarize, to_markdown
+    from sb3_latentswarm.experiments.run_record import git_commit, write_run_record
+
     if not Path(args.model).exists():
         parser.error(f"--model: no file at {args.model}")
     if args.threads:

@@ -13,10 +13,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import torch as th
-from stable_baselines3.common.callbacks import CheckpointCallback
-
-from sb3_latentswarm.evaluation import evaluate, summarize, to_markdown
 from sb3_latentswarm.presets import PRESETS, get_preset
 
 
@@ -27,7 +23,12 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--total-timesteps", type=int, default=None, help="override the preset's budget (agent-steps)")
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: the package default, one)")
-    args = parser.parse_args()
+    args = parser.parse_args()  # before the imports: --help and bad arguments answer without loading torch
+    import torch as th
+    from stable_baselines3.common.callbacks import CheckpointCallback
+
+    from sb3_latentswarm.evaluation import evaluate, summarize, to_markdown
+
     if args.threads:
         th.set_num_threads(args.threads)
 

@@ -16,13 +16,31 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
-import torch as th
 
-from sb3_latentswarm import LatentSwarmPPO, make_vec_env
-from sb3_latentswarm.evaluation import evaluate, to_markdown
-from sb3_latentswarm.experiments.run_record import git_commit, write_run_record
 from sb3_latentswarm.presets import PRESETS, get_preset
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--model", required=True, action="append", help="saved LatentSwarmPPO (repeat for several)")
+    parser.add_argument("--label", action="append", help="a name per --model (default: the file's folder)")
+    parser.add_argument("--preset", default="fast", choices=sorted(PRESETS), help="the preset the model trained on")
+    parser.add_argument("--episodes", type=int, default=50, help="held-out episodes per action mode")
+    parser.add_argument("--rollout-envs", type=int, default=8, help="swarms in the diagnostic rollout")
+    parser.add_argument("--output", required=True, help="result folder")
+    parser.add_argument("--threads", type=int, default=1)
+    return parser
+
+
+if __name__ == "__main__":  # --help and argument errors answer here, before the imports below load torch
+    build_parser().parse_args()
+
+import pandas as pd  # noqa: E402
+import torch as th  # noqa: E402
+
+from sb3_latentswarm import LatentSwarmPPO, make_vec_env  # noqa: E402
+from sb3_latentswarm.evaluation import evaluate, to_markdown  # noqa: E402
+from sb3_latentswarm.experiments.run_record import git_commit, write_run_record  # noqa: E402
 
 HELD_OUT_SEED = 1_000_000
 """Episode seeds start here: far from the training env seeds (0 .. n_envs - 1 and their continuations)."""
@@ -63,14 +81,7 @@ def episode_figures(model: LatentSwarmPPO, episodes: int) -> dict[str, float]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--model", required=True, action="append", help="saved LatentSwarmPPO (repeat for several)")
-    parser.add_argument("--label", action="append", help="a name per --model (default: the file's folder)")
-    parser.add_argument("--preset", default="fast", choices=sorted(PRESETS), help="the preset the model trained on")
-    parser.add_argument("--episodes", type=int, default=50, help="held-out episodes per action mode")
-    parser.add_argument("--rollout-envs", type=int, default=8, help="swarms in the diagnostic rollout")
-    parser.add_argument("--output", required=True, help="result folder")
-    parser.add_argument("--threads", type=int, default=1)
+    parser = build_parser()
     args = parser.parse_args()
     labels = args.label or [Path(m).parent.name for m in args.model]
     if len(labels) != len(args.model):

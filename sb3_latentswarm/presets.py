@@ -139,7 +139,9 @@ def override_targets() -> dict[str, tuple[str, ...]]:
     """The names that :meth:`Preset.with_overrides` (and the CLI's ``--set``) accept, by where each one goes.
 
     Taken from the code (the dataclass fields and the constructors' signatures), so new options need no change here.
-    ``seed``, ``verbose``, ``tensorboard_log`` and ``device`` have CLI flags of their own.
+    ``seed``, ``verbose``, ``tensorboard_log`` and ``device`` have CLI flags of their own. A name that both
+    ``LatentSwarmPPO`` and ``LatentSwarmPolicy`` take (``normalize_value``: the algorithm sets its policy's) is listed,
+    and routed, once: under ``LatentSwarmPPO``, which passes it on to the policy.
     """
     import inspect
 
@@ -149,11 +151,12 @@ def override_targets() -> dict[str, tuple[str, ...]]:
         parameters = inspect.signature(function).parameters.values()
         return tuple(p.name for p in parameters if p.kind is p.POSITIONAL_OR_KEYWORD and p.name not in _NOT_OVERRIDABLE)
 
+    algorithm = arguments(LatentSwarmPPO.__init__)
     return {
         "SwarmConfig": tuple(f.name for f in dataclasses.fields(SwarmConfig) if f.name != "extra"),
         "Preset": PRESET_SETTINGS,
-        "LatentSwarmPPO": arguments(LatentSwarmPPO.__init__),
-        "LatentSwarmPolicy": arguments(LatentSwarmPolicy.__init__),
+        "LatentSwarmPPO": algorithm,
+        "LatentSwarmPolicy": tuple(name for name in arguments(LatentSwarmPolicy.__init__) if name not in algorithm),
     }
 
 

@@ -214,6 +214,19 @@ def test_list_settings_prints_every_set_name_by_target_and_exits(capsys):
     assert listed == {name for names in targets.values() for name in names}
     headings = [line.split(":")[0] for line in out.splitlines() if line and not line.startswith("  ")]
     assert headings == list(targets)
+    names = [name for names in targets.values() for name in names]
+    assert len(names) == len(set(names))  # each name once: normalize_value only under LatentSwarmPPO
+    assert "normalize_value" in targets["LatentSwarmPPO"] and "normalize_value" not in targets["LatentSwarmPolicy"]
+
+
+@pytest.mark.parametrize("value", [False, True])
+def test_set_normalize_value_goes_to_the_algorithm_which_sets_its_policys(value):
+    preset = get_preset("smoke").with_overrides(**parse_overrides([f"normalize_value={value}"]))
+    assert preset.algo_kwargs["normalize_value"] is value
+    assert "normalize_value" not in preset.algo_kwargs.get("policy_kwargs", {})
+    model = preset.make_model(preset.make_env(0))
+    assert model.normalize_value is value and model.policy.normalize_value is value
+    assert (model.policy.value_normalizer is not None) is value
 
 
 def test_unknown_setting_names_get_at_most_three_close_matches():

@@ -1,6 +1,7 @@
 """What a new user meets first: a fast ``--help``, ``--version``, help on every option, clear policy_kwargs errors."""
 
 import argparse
+import ast
 import subprocess
 import sys
 from pathlib import Path
@@ -27,6 +28,35 @@ def test_help_imports_neither_torch_nor_stable_baselines3():
         "print(sorted(m for m in ('torch', 'stable_baselines3', 'sb3_contrib', 'pandas') if m in sys.modules))\n"
     )
     assert run_python(code).strip() == "[]"
+
+
+SCRIPTS = sorted(p.relative_to(ROOT).as_posix() for folder in ("examples", "benchmarks") for p in (ROOT / folder).glob("*.py"))
+HEAVY = ("torch", "stable_baselines3", "sb3_contrib", "pandas", "matplotlib")
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_every_example_and_benchmark_answers_help_before_importing_torch(script):
+    # -X importtime lists every module the interpreter imported, on stderr: `import time: self | cumulative | name`
+    result = subprocess.run(
+        [sys.executable, "-X", "importtime", script, "--help"], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout.startswith("usage: "), result.stdout[:200]
+    imported = {line.rsplit("|", 1)[-1].strip() for line in result.stderr.splitlines() if line.startswith("import time:")}
+    assert sorted(imported & set(HEAVY)) == []
+    summary = ast.get_docstring(ast.parse((ROOT / script).read_text())).split("\n")[0]
+    assert " ".join(summary.split()[:6]) in " ".join(result.stdout.split())  # the module docstring is the description
+
+
+def test_the_scripts_held_out_seed_literals_are_the_evaluation_default():
+    from sb3_latentswarm.evaluation import HELD_OUT_SEED
+
+    literals = {}
+    for script in SCRIPTS:
+        for node in ast.parse((ROOT / script).read_text()).body:
+            if isinstance(node, ast.Assign) and [getattr(t, "id", None) for t in node.targets] == ["HELD_OUT_SEED"]:
+                literals[script] = ast.literal_eval(node.value)
+    assert len(literals) >= 4 and set(literals.values()) == {HELD_OUT_SEED}, literals
 
 
 def test_version(capsys):
@@ -119,6 +149,34 @@ def test_sb3_policy_kwargs_get_the_valid_names():
     assert "net_arch -> predictor_hidden, decoder_hidden, critic_hidden, actor_hidden" in message
     assert "lstm_hidden_size -> latent_dim" in message
     assert "Valid policy_kwargs are: latent_dim, map_dim" in message
+
+
+@pytest.mark.parametrize("name", ["MultiInputPolicy", "MlpPolicy", "MultiInputLstmPolicy", "latentswarmpolicy"])
+def test_an_sb3_policy_name_gets_an_error_naming_the_supported_policy(name):
+    from sb3_latentswarm import LatentSwarmPPO, make_vec_env
+    from sb3_latentswarm.presets import get_preset
+
+    env = make_vec_env(1, config=get_preset("smoke").config, seed=0)
+    expected = f"LatentSwarmPPO has no policy '{name}': the only one it supports is 'LatentSwarmPolicy'"
+    with pytest.raises(ValueError, match=expected):
+        LatentSwarmPPO(name, env, n_steps=20, chunk_length=5, batch_size=30)
+
+
+def test_an_sb3_policy_class_is_refused_before_it_is_built():
+    from stable_baselines3.common.policies import MultiInputActorCriticPolicy
+
+    from sb3_latentswarm import LatentSwarmPolicy, LatentSwarmPPO, make_vec_env
+    from sb3_latentswarm.presets import get_preset
+
+    env = make_vec_env(1, config=get_preset("smoke").config, seed=0)
+    with pytest.raises(TypeError, match="policy must be 'LatentSwarmPolicy' or a subclass of LatentSwarmPolicy, got <class"):
+        LatentSwarmPPO(MultiInputActorCriticPolicy, env, n_steps=20, chunk_length=5, batch_size=30)
+
+    class WiderCritic(LatentSwarmPolicy):
+        pass
+
+    model = LatentSwarmPPO(WiderCritic, env, n_steps=20, chunk_length=5, batch_size=30)
+    assert type(model.policy) is WiderCritic
 
 
 @pytest.mark.slow  # trains and loads two committed models: about 10 s unloaded, minutes on a loaded machine

@@ -235,7 +235,8 @@ class LatentSwarmPPO(RecurrentPPO):
     ``clip_range=0.2``, ``ent_coef=0.01``, ``vf_coef=0.5`` (c1), ``map_coef=5`` (c2), ``pred_coef=5`` (c3), and a
     learning rate of 1e-4 for the first 1000 of 1600 updates and 1e-5 after (:func:`paper_learning_rate`).
 
-    :param policy: ``"LatentSwarmPolicy"`` or the policy class
+    :param policy: ``"LatentSwarmPolicy"`` or :class:`LatentSwarmPolicy` (or a subclass); any other name (SB3's
+        ``"MultiInputPolicy"``, ...) raises ``ValueError``, any other class ``TypeError``
     :param env: a swarm VecEnv from :func:`sb3_latentswarm.make_vec_env` (it must expose ``n_agents``)
     :param learning_rate: learning rate or schedule of ``progress_remaining``
     :param n_steps: steps per vec-env slot per rollout (paper: 600)
@@ -322,6 +323,8 @@ class LatentSwarmPPO(RecurrentPPO):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ):
+        if not isinstance(policy, str) and not (isinstance(policy, type) and issubclass(policy, LatentSwarmPolicy)):
+            raise TypeError(f"policy must be 'LatentSwarmPolicy' or a subclass of LatentSwarmPolicy, got {policy!r}")
         arguments = {name: value for name, value in locals().items() if name not in ("self", "policy", "env", "device")}
         validate_algorithm_kwargs(**{name: value for name, value in arguments.items() if not name.startswith("__")})
         chunk_length = _fitting_chunk_length(n_steps, chunk_length)
@@ -378,6 +381,19 @@ class LatentSwarmPPO(RecurrentPPO):
             self._check_batch_size()
         if _init_setup_model:
             self._setup_model()
+
+    def _get_policy_from_name(self, policy_name: str) -> type[BasePolicy]:
+        """SB3's look-up of ``policy_aliases``, with an error that names the one policy this algorithm supports.
+
+        :raise ValueError: for any other name, e.g. SB3's ``"MultiInputPolicy"`` or sb3-contrib's
+            ``"MultiInputLstmPolicy"`` (they have no latent state, no messages and no predictor)
+        """
+        if policy_name not in self.policy_aliases:
+            raise ValueError(
+                f"LatentSwarmPPO has no policy {policy_name!r}: the only one it supports is 'LatentSwarmPolicy' "
+                "(the latent-state policy of Sec. III; its options go in policy_kwargs)"
+            )
+        return self.policy_aliases[policy_name]
 
     # ------------------------------------------------------------------ environment checks
     @staticmethod

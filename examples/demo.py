@@ -142,9 +142,10 @@ def main() -> None:
     print(to_markdown(summarize(demo, by="condition")))
 
     # ---- 2. the committed coordination model under the paper's conditions
-    coordination = get_preset("coordination").config
     print(f"\n[2/2] Evaluating the committed coordination model: {Path(args.model).relative_to(ROOT)}")
     proposed = LatentSwarmPPO.load(args.model, device="cpu")
+    # the env the model was trained on (saved with it: the second round's bursty channel), else the preset's
+    coordination = proposed.swarm_config or get_preset("coordination").config
     no_comm_learner = LatentSwarmPPO.load(args.no_comm_model, device="cpu")
     episodes = args.coordination_episodes
     table = evaluate_conditions(proposed, CONDITIONS, n_episodes=episodes, config=coordination, **held_out)
@@ -153,7 +154,8 @@ def main() -> None:
     seeds = f"episode seeds {EVAL_SEED_BASE:,}..{EVAL_SEED_BASE + episodes - 1:,}"
     print(
         f"\n### Coordination task ({coordination.grid_width} x {coordination.grid_height} cells, N = "
-        f"{coordination.n_agents}, T = {coordination.max_steps}, corner launch): Table I's conditions, {episodes} held-out "
+        f"{coordination.n_agents}, T = {coordination.max_steps}, corner launch, p_f = {coordination.p_fail} "
+        f"{coordination.outage_model}, the model's training channel): Table I's conditions, {episodes} held-out "
         f"episodes per row ({seeds}), sampled actions\n"
     )
     print(to_markdown(summarize(table, by="condition")))

@@ -59,8 +59,10 @@ def _overrides(items: list[str]) -> dict:
 
 def _run(root: Path, overrides: dict, updates: int) -> list[float]:
     env = {**os.environ, "PYTHONPATH": str(root), "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    # cwd=root: ``python -c`` puts the working folder first on sys.path, ahead of PYTHONPATH, so run from another
+    # folder the old side would import the package found there (a run from the repository measured new against new)
     result = subprocess.run([sys.executable, "-c", CHILD, json.dumps(overrides), str(updates)], env=env, check=True,
-                            capture_output=True, text=True)
+                            capture_output=True, text=True, cwd=root)
     return json.loads(result.stdout.strip().splitlines()[-1])
 
 

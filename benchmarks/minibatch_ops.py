@@ -39,9 +39,7 @@ import math
 import os
 import pathlib
 import statistics
-import subprocess
 import sys
-import tempfile
 import time
 from typing import Any
 
@@ -71,9 +69,11 @@ from torch.utils._python_dispatch import TorchDispatchMode  # noqa: E402
 
 from sb3_latentswarm import LatentSwarmPPO, make_vec_env  # noqa: E402
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))  # the shared helper, also when loaded by path (tests)
+from _compare import alternate  # noqa: E402
+
 SYNC_METHODS = ("item", "__float__", "__bool__", "__int__", "__index__", "tolist", "cpu", "numpy")
 """Tensor methods that hand a tensor's value to the host."""
-REPO = pathlib.Path(__file__).resolve().parents[1]
 PRESET = "preset"
 """The ``--autocast`` variant that keeps the preset's own setting."""
 
@@ -211,18 +211,9 @@ def print_table(rows: list[dict[str, Any]], label: str = "", sites: bool = False
 
 def compare(args: argparse.Namespace) -> None:
     """Old (``args.compare``) and new (working tree) code in alternating subprocesses; the ratio of CPU s."""
-    with tempfile.TemporaryDirectory() as old_root:
-        archive = subprocess.run(["git", "-C", str(REPO), "archive", args.compare, "sb3_latentswarm"], check=True,
-                                 capture_output=True).stdout
-        subprocess.run(["tar", "-x", "-C", old_root], input=archive, check=True)
-        base = [sys.executable, str(pathlib.Path(__file__).resolve()), "--preset", args.preset, "--json",
-                "--minibatches", str(args.minibatches), "--repeats", str(args.repeats)]
-        results: dict[str, list[dict[str, Any]]] = {"old": [], "new": []}
-        for _ in range(args.rounds):
-            for code, root in (("old", old_root), ("new", str(REPO))):
-                env = {**os.environ, "PYTHONPATH": root, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-                out = subprocess.run(base, env=env, check=True, capture_output=True, text=True, cwd=root).stdout
-                results[code].append(json.loads(out.strip().splitlines()[-1])[0])
+    arguments = ["--preset", args.preset, "--json", "--minibatches", str(args.minibatches), "--repeats", str(args.repeats)]
+    runs = alternate(__file__, arguments, args.compare, args.rounds)
+    results = {code: [run.result[0] for run in code_runs] for code, code_runs in runs.items()}
     rows = []
     for code, runs in results.items():
         row = dict(runs[0], code=code, cpu_s=statistics.median(r["cpu_s"] for r in runs),

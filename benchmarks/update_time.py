@@ -11,9 +11,15 @@ the host syncs (``aten::_local_scalar_dense``, which ``.item()``, ``float()`` an
 ``aten::nonzero``; on CUDA also ``cudaStreamSynchronize``/``cudaDeviceSynchronize``) and the aten ops per minibatch.
 The output format is documented in ``docs/benchmarks.md``.
 
+``--compare REV --rounds R`` measures the package of git revision ``REV`` against the working tree's: each round runs
+this script once on each (old first) in a fresh one-thread subprocess (``benchmarks/_compare.py``), then prints per
+update the process CPU seconds (user + sys of the timed updates), wall seconds and the rollout/train split, medians
+over the rounds, and the old/new ratio. The warm-up updates run as asked but are not profiled (``--no-profile``).
+
     python benchmarks/update_time.py --device cuda --preset paper --updates 3 --json update_time_cuda.json
     python benchmarks/update_time.py --device cpu --preset paper --updates 1 --warmup 0 --threads 1
     python benchmarks/update_time.py --device cpu --preset smoke --updates 2 --json /tmp/smoke.json
+    python benchmarks/update_time.py --preset paper --compare d4e6afc --rounds 2 --updates 1 --threads 1
 """
 
 from __future__ import annotations
@@ -25,10 +31,12 @@ import json
 import os
 import platform
 import resource
+import statistics
 import sys
 import time
 from collections import Counter
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 from sb3_latentswarm.common.atomic import write_text
@@ -49,7 +57,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--autocast", default=None, help="passed as LatentSwarmPPO(autocast=...), where supported")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--json", default=None, metavar="PATH", help="also write the results as JSON to PATH")
+    parser.add_argument("--json", default=None, metavar="PATH",
+                        help="also write the results as JSON to PATH ('-': print them as one JSON line last)")
+    parser.add_argument("--compare", metavar="REV", help="git revision whose package is measured against the work tree")
+    parser.add_argument("--rounds", type=int, default=2, help="with --compare: alternating old/new subprocess rounds")
     return parser
 
 
@@ -58,9 +69,19 @@ if __name__ == "__main__":  # --help and argument errors answer here, before the
 
 import torch as th  # noqa: E402
 
-from sb3_latentswarm import LatentSwarmPPO  # noqa: E402
+import sb3_latentswarm  # noqa: E402
+from sb3_latentswarm import LatentSwarmPPO, make_vec_env  # noqa: E402
 from sb3_latentswarm.envs.vec_env import BACKENDS  # noqa: E402
-from sb3_latentswarm.threads import set_torch_threads  # noqa: E402
+
+try:
+    from sb3_latentswarm.threads import set_torch_threads
+except ImportError:  # a package before the thread guard (measured by --compare)
+    def set_torch_threads(threads: int) -> int:
+        th.set_num_threads(threads)
+        return th.get_num_threads()
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # the shared helper, also when loaded by path (tests)
+from _compare import Run, alternate, check_revision  # noqa: E402
 
 RANGES = ("update", "rollout", "env", "policy", "rollout_other", "train", "train_forward", "backward", "optimizer")
 """Keys of ``seconds`` and ``cpu_seconds`` in the output (per update; see ``docs/benchmarks.md``)."""
@@ -224,9 +245,9 @@ def peak_memory(device: th.device) -> tuple[int, str]:
 
 def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> th.device:
     """Refuse bad arguments before any work: counts, the device, the backend, an ``--autocast`` this version lacks."""
-    if args.updates < 1 or args.warmup < 0 or args.threads < 0:
-        parser.error(f"--updates must be >= 1, --warmup and --threads >= 0 (got {args.updates}, {args.warmup}, "
-                     f"{args.threads})")
+    if args.updates < 1 or args.warmup < 0 or args.threads < 0 or args.rounds < 1:
+        parser.error(f"--updates and --rounds must be >= 1, --warmup and --threads >= 0 (got {args.updates}, "
+                     f"{args.rounds}, {args.warmup}, {args.threads})")
     try:
         device = th.device(args.device)
     except RuntimeError as error:
@@ -239,6 +260,11 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> th.
         parser.error(f"--device must be cpu or cuda[:N], got {args.device}")
     if args.autocast is not None and "autocast" not in inspect.signature(LatentSwarmPPO.__init__).parameters:
         parser.error("--autocast: this version of LatentSwarmPPO has no autocast option")
+    if args.compare:
+        try:
+            check_revision(args.compare)
+        except ValueError as error:
+            parser.error(str(error))
     return device
 
 
@@ -251,8 +277,12 @@ def run(args: argparse.Namespace, device: th.device) -> dict[str, Any]:
         kwargs["compile_latent_step"] = True
     if args.autocast is not None:
         kwargs["autocast"] = args.autocast
-    env = preset.make_env(args.seed, backend=args.backend)
-    model = preset.make_model(env, seed=args.seed, device=device, **kwargs)
+    if hasattr(preset, "make_model"):
+        env = preset.make_env(args.seed, backend=args.backend)
+        model = preset.make_model(env, seed=args.seed, device=device, **kwargs)
+    else:  # a package before Preset.make_env/make_model (measured by --compare): what those do
+        env = make_vec_env(preset.n_envs, config=preset.config, seed=args.seed, backend=args.backend)
+        model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=args.seed, device=device, **kwargs)
     per_update = model.n_steps * model.n_envs
     timer = UpdateProfiler(model)
     timer.install()
@@ -267,8 +297,10 @@ def run(args: argparse.Namespace, device: th.device) -> dict[str, Any]:
         timer.reset()
         if device.type == "cuda":
             th.cuda.reset_peak_memory_stats(device)
+        process_cpu = time.process_time()
         with timer.timed("update"):
             model.learn(args.updates * per_update, reset_num_timesteps=args.warmup == 0)
+        process_cpu = time.process_time() - process_cpu
     finally:
         timer.restore()
     memory, memory_kind = peak_memory(device)
@@ -293,6 +325,8 @@ def run(args: argparse.Namespace, device: th.device) -> dict[str, Any]:
         "minibatches_per_update": minibatches,
         "seconds": seconds,
         "cpu_seconds": timer.per_update(timer.cpu, args.updates),
+        "process_cpu_seconds": process_cpu / args.updates,
+        "package": str(Path(sb3_latentswarm.__file__).resolve().parent),
         "agent_steps_per_second": per_update / seconds["update"],
         "budget_updates": preset.updates,
         "budget_hours": preset.updates * seconds["update"] / 3600,
@@ -336,13 +370,79 @@ def print_report(result: dict[str, Any]) -> None:
     print(f"peak memory: {result['peak_memory_bytes'] / 2**20:,.0f} MiB ({result['peak_memory_kind']})")
 
 
+COMPARED = ("process_cpu_s", "wall_s", "rollout_cpu_s", "train_cpu_s", "rollout_wall_s", "train_wall_s", "child_cpu_s")
+"""Per-update figures of ``--compare`` (medians over the rounds), in the order of its table."""
+
+
+def compared_figures(run: Run) -> dict[str, float]:
+    """The :data:`COMPARED` figures of one ``--compare`` run (per update; ``child_cpu_s`` is the whole subprocess)."""
+    result = run.result
+    seconds, cpu = result["seconds"], result["cpu_seconds"]
+    return {
+        "process_cpu_s": result["process_cpu_seconds"],
+        "wall_s": seconds["update"],
+        "rollout_cpu_s": cpu["rollout"],
+        "train_cpu_s": cpu["train"],
+        "rollout_wall_s": seconds["rollout"],
+        "train_wall_s": seconds["train"],
+        "child_cpu_s": run.child_cpu_s,
+    }
+
+
+def compare(args: argparse.Namespace) -> dict[str, Any]:
+    """``args.compare``'s package (old) against the working tree's (new), alternating subprocesses; medians and ratios."""
+    arguments = ["--preset", args.preset, "--device", args.device, "--updates", str(args.updates), "--warmup",
+                 str(args.warmup), "--threads", str(args.threads), "--backend", args.backend, "--seed", str(args.seed),
+                 "--no-profile", "--json", "-"]
+    if args.compile:
+        arguments.append("--compile")
+    if args.autocast is not None:
+        arguments += ["--autocast", args.autocast]
+    header = "| code | round | " + " | ".join(COMPARED) + " | load before -> after |"
+    print(f"old: {args.compare}, new: the working tree; {args.rounds} alternating round(s) of `update_time.py "
+          f"{' '.join(arguments[:-3])}`; seconds per update (child_cpu_s: the whole subprocess)", flush=True)
+    print(header + "\n" + "|---" * (header.count("|") - 1) + "|", flush=True)
+
+    def show(run: Run) -> None:
+        figures, load = compared_figures(run), run.result["load_average"]
+        print(f"| {run.code} | {run.round} | " + " | ".join(f"{figures[key]:.3f}" for key in COMPARED)
+              + f" | {load['before'][0]:.2f} -> {load['after'][0]:.2f} |", flush=True)
+
+    load_before = os.getloadavg()
+    runs = alternate(__file__, arguments, args.compare, args.rounds, on_run=show)
+    medians = {code: {key: statistics.median(compared_figures(run)[key] for run in code_runs) for key in COMPARED}
+               for code, code_runs in runs.items()}
+    for code, figures in medians.items():
+        print(f"| {code} | median | " + " | ".join(f"{figures[key]:.3f}" for key in COMPARED) + " | |")
+    ratios = {key: medians["old"][key] / medians["new"][key] if medians["new"][key] > 0 else float("nan")
+              for key in COMPARED}
+    print(f"old {args.compare} / new per update: process CPU s {ratios['process_cpu_s']:.2f}x, wall s "
+          f"{ratios['wall_s']:.2f}x, rollout CPU s {ratios['rollout_cpu_s']:.2f}x, train CPU s {ratios['train_cpu_s']:.2f}x "
+          f"({args.rounds} alternating round(s), load {load_before[0]:.2f} -> {os.getloadavg()[0]:.2f})")
+    return {
+        "compare": args.compare,
+        "rounds": args.rounds,
+        "arguments": arguments[:-3],
+        "load_average": {"before": list(load_before), "after": list(os.getloadavg())},
+        "medians": medians,
+        "ratios": ratios,
+        "runs": [{"code": run.code, "round": run.round, **compared_figures(run), "result": run.result}
+                 for code_runs in runs.values() for run in code_runs],
+    }
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = build_parser()
     args = parser.parse_args(argv)
     device = check_args(parser, args)
-    result = run(args, device)
-    print_report(result)
-    if args.json:
+    if args.compare:
+        result = compare(args)
+    else:
+        result = run(args, device)
+        print_report(result)
+    if args.json == "-":
+        print(json.dumps(result), flush=True)
+    elif args.json:
         write_text(args.json, json.dumps(result, indent=2) + "\n")
     return result
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import re
 import sys
 import warnings
 from pathlib import Path
@@ -89,10 +90,12 @@ def test_update_time_leaves_torch_as_it_was(update_time, smoke_result):
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["--updates", "0"], "--updates must be >= 1"),
-        (["--warmup", "-1"], "--updates must be >= 1"),
+        (["--updates", "0"], "--updates and --rounds must be >= 1"),
+        (["--warmup", "-1"], "--updates and --rounds must be >= 1"),
         (["--device", "tpu"], "--device"),
         (["--device", "cuda"], "CUDA is not available"),
+        (["--rounds", "0"], "(got 1, 0, 1, 0)"),
+        (["--compare", "no-such-revision"], "--compare no-such-revision: not a commit"),
     ],
 )
 def test_update_time_refuses_bad_arguments_before_work(update_time, monkeypatch, capsys, argv, message):
@@ -101,6 +104,39 @@ def test_update_time_refuses_bad_arguments_before_work(update_time, monkeypatch,
         update_time.main(["--preset", "smoke", *argv])
     assert exit_info.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_update_time_compare_interleaves_old_and_new_packages(update_time, capsys):
+    # HEAD's package exported by git archive (old) against the working tree's (new), one subprocess each
+    result = update_time.main(["--preset", "smoke", "--compare", "HEAD", "--rounds", "1", "--warmup", "0"])
+    out = capsys.readouterr().out
+    assert re.search(r"old HEAD / new per update: process CPU s \d+\.\d\dx, wall s \d+\.\d\dx", out), out
+    assert "| old | median |" in out and "| new | median |" in out
+    assert [(run["code"], run["round"]) for run in result["runs"]] == [("old", 0), ("new", 0)]
+    packages = {run["code"]: Path(run["result"]["package"]) for run in result["runs"]}
+    assert packages["new"] == BENCHMARKS.parent / "sb3_latentswarm"
+    assert packages["old"].name == "sb3_latentswarm" and packages["old"] != packages["new"]
+    for run in result["runs"]:
+        assert run["result"]["preset"] == "smoke" and run["result"]["host_syncs"] is None  # children: --no-profile
+        assert 0 < run["process_cpu_s"] < run["child_cpu_s"] and run["train_cpu_s"] > 0 and run["rollout_cpu_s"] > 0
+    assert set(result["ratios"]) == set(update_time.COMPARED)
+    assert result["ratios"]["process_cpu_s"] == pytest.approx(
+        result["medians"]["old"]["process_cpu_s"] / result["medians"]["new"]["process_cpu_s"])
+
+
+def test_compare_helper_reads_the_last_json_line_and_reports_failed_runs(tmp_path):
+    compare = load_benchmark("_compare")
+    assert compare.last_json_line('table\n{"a": 1}\n\n') == {"a": 1}
+    with pytest.raises(ValueError, match="printed nothing"):
+        compare.last_json_line("\n")
+    with pytest.raises(ValueError, match="last line is not JSON"):
+        compare.last_json_line("[1]\nnot json")
+    failing = tmp_path / "failing.py"
+    failing.write_text("import sys\nsys.exit('boom')\n")
+    with pytest.raises(RuntimeError, match="exited 1:\nboom"):
+        compare.run_once([sys.executable, str(failing)], tmp_path)
+    with pytest.raises(ValueError, match="--rounds must be an int in"):
+        compare.alternate(failing, [], "HEAD", 0)
 
 
 def test_train_throughput_compares_both_algorithms_per_hidden_size(capsys):

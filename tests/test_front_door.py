@@ -30,7 +30,12 @@ def test_help_imports_neither_torch_nor_stable_baselines3():
     assert run_python(code).strip() == "[]"
 
 
-SCRIPTS = sorted(p.relative_to(ROOT).as_posix() for folder in ("examples", "benchmarks") for p in (ROOT / folder).glob("*.py"))
+SCRIPTS = sorted(  # the scripts a user runs (``_compare.py`` is a module the benchmarks import)
+    p.relative_to(ROOT).as_posix()
+    for folder in ("examples", "benchmarks")
+    for p in (ROOT / folder).glob("*.py")
+    if not p.name.startswith("_")
+)
 HEAVY = ("torch", "stable_baselines3", "sb3_contrib", "pandas", "matplotlib")
 
 

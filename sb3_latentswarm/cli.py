@@ -765,7 +765,7 @@ def _evaluation_conflict(folder: Path, record: dict[str, Any]) -> str | None:
         return f"its {path} must hold a JSON object (an evaluation record); remove it or pass another --output"
     differ = [key for key in RECORD_IDENTITY if recorded.get(key) != record[key]]
     if differ:
-        return f"its tables were made with another {', '.join(differ)} (see its {EVALUATION_RECORD})"
+        return f"its tables were made with other settings: {', '.join(differ)} (see its {EVALUATION_RECORD})"
     tables = recorded.get("tables") or {}
     unrecorded = [name for name in present if name not in tables]
     if unrecorded:
@@ -900,6 +900,7 @@ def command_sweep(args: argparse.Namespace) -> int:
         overrides=parse_overrides(args.set or []),
         extra_eval_sets=[_parse_eval_set(text) for text in args.eval_set or []],
         eval_episodes=args.eval_episodes,
+        **({} if args.eval_seed is None else {"eval_seed": args.eval_seed}),
         deterministic=not args.stochastic,
         total_timesteps=args.total_timesteps,
         warm_start=args.warm_start,
@@ -1126,6 +1127,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--total-timesteps, instead of training from scratch; the trials' progress.csv start with that sweep's rows",
     )
     sweep.add_argument("--eval-episodes", type=int_at_least(1), default=None, help="episodes per cell (default: the preset's)")
+    sweep.add_argument(
+        "--eval-seed", type=int_at_least(0), default=None,
+        help="first evaluation episode seed, episode k uses eval_seed + k (default 1000000: above every training env "
+        "seed; a continuation of a continuation (--warm-start twice) seeds its env copies from 1000000 on and needs a "
+        "larger one)",
+    )
     sweep.add_argument("--stochastic", action="store_true", help="evaluate with sampled actions (default: the mean action)")
     sweep.add_argument("--address", default=None, help="Ray cluster to attach to (default: start Ray on this machine)")
     sweep.add_argument(

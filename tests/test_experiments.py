@@ -140,7 +140,9 @@ def test_plan_crosses_variants_seeds_and_grid_points():
         (["--grid", "p_fail=0.1,0.5", "--set", "p_fail=0.2"], "--grid p_fail is also given in --set"),
         (["--set", "n_epochs=0"], "n_epochs must be an int in [1, inf), got 0"),
         (["--set", "learning_rate=-1"], "learning_rate must be a finite number in (0.0, 1.0], got -1.0"),
-        (["--set", "latent_dim=0"], "latent_dim must be >= 1, got 0"),
+        (["--set", "latent_dim=0"], "latent_dim must be an int in [1, inf), got 0"),
+        (["--set", "latent_dim=32.5"], "latent_dim must be an int, got float (32.5)"),
+        (["--set", "memory_dim=2.0"], "memory_dim must be an int, got float (2.0)"),
         (["--set", "batch_size=1"], "batch_size must hold at least one whole swarm sequence"),
         (["--grid", "batch_size=30,1"], "--grid point {'batch_size': 1}: batch_size must hold"),
         (["--set", "n_envs=0"], "n_envs must be an int in"),
@@ -499,7 +501,7 @@ def test_a_warm_start_that_cannot_continue_is_refused_before_training(tmp_path):
     budget = SweepSpec.create("smoke", 1).point_preset({}).total_timesteps
     with pytest.raises(ValueError, match="as many agent-steps as this sweep.s budget"):
         SweepSpec.create("smoke", 1, variants=["proposed"], warm_start=tmp_path / "a")
-    with pytest.raises(ValueError, match=r"differs in \['overrides'\]"):
+    with pytest.raises(ValueError, match=r"other settings \(overrides: \{\} there, \{'p_fail': 0.5\} here\)"):
         SweepSpec.create("smoke", 1, variants=["proposed"], overrides={"p_fail": 0.5}, warm_start=tmp_path / "a",
                          total_timesteps=2 * budget)
     with pytest.raises(ValueError, match=r"not finished there: \['no_comm-seed0', 'proposed-seed1', 'no_comm-seed1'\]"):
@@ -517,3 +519,16 @@ def test_a_spec_written_before_budget_and_warm_start_existed_loads(tmp_path):
     old = {k: v for k, v in spec.to_dict().items() if k not in ("total_timesteps", "warm_start")}
     (tmp_path / "sweep.json").write_text(json.dumps(old))
     assert SweepSpec.load(tmp_path / "sweep.json") == spec
+
+
+def test_a_continuation_of_a_continuation_needs_a_later_eval_seed(tmp_path):
+    earlier = _finished_smoke_sweep(tmp_path / "a")
+    budget = earlier.point_preset({}).total_timesteps
+    _finished_smoke_sweep(tmp_path / "b", warm_start=tmp_path / "a", total_timesteps=2 * budget)
+    # the second continuation seeds its env copies from 2 * 500,000 on: the default evaluation seeds would overlap them
+    with pytest.raises(ValueError, match="give --eval-seed 1000002 or larger"):
+        SweepSpec.create("smoke", 1, variants=["proposed"], warm_start=tmp_path / "b", total_timesteps=3 * budget)
+    spec = SweepSpec.create(
+        "smoke", 1, variants=["proposed"], warm_start=tmp_path / "b", total_timesteps=3 * budget, eval_seed=2_000_000
+    )
+    assert spec.warm_start_depth == 2

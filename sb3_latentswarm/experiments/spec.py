@@ -264,10 +264,12 @@ class SweepSpec:
         names = ("preset", "grid", "overrides")
         differ = [name for name in names if _jsonable(getattr(self, name)) != _jsonable(getattr(earlier, name))]
         if differ:
+            sides = "; ".join(
+                f"{name}: {_jsonable(getattr(earlier, name))} there, {_jsonable(getattr(self, name))} here" for name in differ
+            )
             raise ValueError(
-                f"--warm-start {folder}: that sweep differs in {differ} "
-                f"({ {name: _jsonable(getattr(earlier, name)) for name in differ} }); a continued trial must train the same "
-                "way (only --total-timesteps and the evaluation may change)"
+                f"--warm-start {folder}: that sweep trained with other settings ({sides}); a continued trial must train "
+                "the same way (only --total-timesteps and the evaluation may change)"
             )
         missing, too_long = [], {}
         for point, preset in zip(self.grid_points(), self.trial_presets()):
@@ -322,8 +324,8 @@ class SweepSpec:
         )
         if self.eval_seed < largest_training_seed:
             raise ValueError(
-                f"eval_seed={self.eval_seed} overlaps the training env seeds (up to {largest_training_seed - 1}); "
-                "use a larger one"
+                f"--eval-seed {self.eval_seed} overlaps the training env seeds (up to {largest_training_seed - 1}); "
+                f"give --eval-seed {largest_training_seed} or larger"
             )
         ids = [trial_id(v, s, p) for p in self.grid_points() for s in self.seeds for v in self.variants]
         if len(set(ids)) != len(ids):  # a safeguard: trial_id hashes whatever it cannot show

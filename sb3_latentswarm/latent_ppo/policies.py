@@ -36,7 +36,7 @@ from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 from torch.distributions import Normal
 
-from sb3_latentswarm.common.checks import check_choice, check_float
+from sb3_latentswarm.common.checks import check_choice, check_float, check_int
 from sb3_latentswarm.common.observations import (
     ACTOR_OBS_KEYS,
     POSITION_DIMS,
@@ -431,9 +431,12 @@ class LatentSwarmPolicy(BasePolicy):
             normalize_images=False,
             squash_output=squashed,
         )
-        for name, value in (("latent_dim", latent_dim), ("predictor_hidden", predictor_hidden)):
-            if int(value) < 1:
-                raise ValueError(f"{name} must be >= 1, got {value}")
+        sizes = {"latent_dim": latent_dim, "map_dim": map_dim, "task_dim": task_dim, "memory_dim": memory_dim,
+                 "predictor_hidden": predictor_hidden, "decoder_hidden": decoder_hidden, "critic_hidden": critic_hidden,
+                 "actor_hidden": actor_hidden}
+        for name, value in sizes.items():  # network widths: ints >= 1; map/task/memory_dim None means latent_dim
+            if value is not None or name not in ("map_dim", "task_dim", "memory_dim"):
+                check_int(name, value, low=1)
         self.latent_dim = latent_dim
         self.map_dim = map_dim or latent_dim
         self.task_dim = task_dim or latent_dim

@@ -122,9 +122,9 @@ CHECKPOINTS = "checkpoints"
 """Subfolder of ``train --output`` holding the run's checkpoints (:mod:`sb3_latentswarm.checkpoints`)."""
 
 RESUME_SETTINGS = ("preset", "set", "seed", "env_seed", "total_timesteps", "backend")
-"""The ``train`` options a checkpoint stores and ``--resume`` compares (given ones must match; missing ones are taken
-from the checkpoint; a checkpoint without ``env_seed``, from before ``--env-seed``, seeded its env copies from
-``seed``)."""
+"""The ``train`` options a checkpoint stores and ``--resume`` compares (given ones must match, except a larger
+``--total-timesteps``, which extends the run's budget; missing ones are taken from the checkpoint; a checkpoint
+without ``env_seed``, from before ``--env-seed``, seeded its env copies from ``seed``)."""
 
 
 def _train_settings(
@@ -152,6 +152,8 @@ def _train_settings(
         def same(name: str, value: Any) -> bool:
             if name == "set":  # the same settings in any order
                 return parse_overrides(value) == parse_overrides(stored.get(name) or [])
+            if name == "total_timesteps" and stored.get(name) is not None:  # a larger budget extends the run
+                return value >= stored[name]
             return value == stored.get(name)
 
         differ = [
@@ -165,7 +167,10 @@ def _train_settings(
                 f"the run's settings (omit the options to take them from the {source}) or start a new run in another "
                 f"--output"
             )
-        return {name: stored.get(name) for name in RESUME_SETTINGS}
+        resumed = {name: stored.get(name) for name in RESUME_SETTINGS}
+        if given["total_timesteps"] is not None:
+            resumed["total_timesteps"] = given["total_timesteps"]
+        return resumed
     defaults = {"preset": "demo", "set": [], "seed": 0, "total_timesteps": None, "backend": "batched"}
     settings = {name: defaults.get(name) if value is None else value for name, value in given.items()}
     if settings["env_seed"] is None:  # the default: copy c gets --seed + c, as before --env-seed
@@ -318,6 +323,14 @@ def command_train(args: argparse.Namespace) -> int:
     copies = f"env copies {args.env_seed}..{args.env_seed + preset.n_envs - 1}"
     if state:
         print(f"Resuming {latest} at {model.num_timesteps:,} of {end:,} agent-steps{rounded}, seed {args.seed} ({copies})")
+        earlier = stored.get("total_timesteps")
+        if earlier is not None and total > earlier:
+            print(f"The run's budget grows from {earlier:,} to {total:,} agent-steps (--total-timesteps)")
+        if remaining <= 0:
+            print(
+                f"The run has trained its {total:,} agent-steps: nothing to train (give --total-timesteps N, N > "
+                f"{model.num_timesteps:,}, to train on); model.zip is written again from the newest checkpoint"
+            )
     else:
         overrides = f" with {' '.join(args.set)}" if args.set else ""
         print(
@@ -467,6 +480,13 @@ def _command_train_seeds(args: argparse.Namespace, output: Path) -> int:
         )
     stored = (record or {}).get("options") or {}
     settings = _train_settings(args, (record or {}).get("settings"), source=SEEDS_RECORD)
+    recorded_total = ((record or {}).get("settings") or {}).get("total_timesteps")
+    if recorded_total is not None and settings["total_timesteps"] != recorded_total:
+        raise ValueError(
+            f"--resume --total-timesteps {settings['total_timesteps']}: the seeds of {args.output} were started with "
+            f"{recorded_total}; a --seeds run keeps its budget (finished seeds are skipped). Extend one seed with "
+            f"train --resume --output {args.output}/seedN --total-timesteps {settings['total_timesteps']}"
+        )
     del settings["env_seed"]  # each seed's own (training_env_seed), recorded in env_seeds below
     args.preset, args.set, args.seed, args.backend = settings["preset"], settings["set"], settings["seed"], settings["backend"]
     n_seeds = args.seeds or int((record or {}).get("seeds", 1))
@@ -993,7 +1013,8 @@ def build_parser() -> argparse.ArgumentParser:
     train = sub.add_parser("train", help="train LatentSwarmPPO on a preset")
     add_common(train, "demo")
     train.add_argument(
-        "--total-timesteps", type=int_at_least(1), default=None, help="override the preset's budget (agent-steps)"
+        "--total-timesteps", type=int_at_least(1), default=None,
+        help="override the preset's budget (agent-steps); with --resume, a larger one extends the run's budget"
     )
     train.add_argument(
         "--output",

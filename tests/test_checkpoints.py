@@ -18,6 +18,7 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
@@ -261,6 +262,26 @@ def test_cli_resume_refuses_other_settings_and_a_run_folder_is_not_reused(tmp_pa
         main(["train", "--preset", "smoke", "--output", output])
     assert "holds the checkpoints of an earlier run" in capsys.readouterr().err
     assert main(["train", "--resume", "--output", output, "--preset", "smoke"]) == 0  # complete: saved again, 0
+    assert "nothing to train" in capsys.readouterr().out
+
+
+def test_cli_resume_with_a_larger_budget_trains_the_run_on(tmp_path, capsys):
+    from sb3_latentswarm import LatentSwarmPPO
+
+    output = str(tmp_path / "run")
+    budget = 2 * PER_UPDATE
+    assert main(["train", "--preset", "smoke", "--output", output, "--no-progress", "--total-timesteps", str(budget)]) == 0
+    with pytest.raises(SystemExit):  # a smaller budget than the run's is another run
+        main(["train", "--resume", "--output", output, "--total-timesteps", str(PER_UPDATE)])
+    assert f"total_timesteps (checkpoint: {budget}, command: {PER_UPDATE})" in capsys.readouterr().err
+    assert main(["train", "--resume", "--output", output, "--no-progress", "--total-timesteps", str(2 * budget)]) == 0
+    assert f"budget grows from {budget:,} to {2 * budget:,}" in capsys.readouterr().out
+    assert LatentSwarmPPO.load(Path(output) / "model.zip", device="cpu").num_timesteps == 2 * budget
+    progress = pd.read_csv(Path(output) / "progress.csv")
+    assert progress["time/total_timesteps"].tolist() == [PER_UPDATE * k for k in range(1, 5)]
+    # the extended budget is the run's now: a plain --resume keeps it
+    assert main(["train", "--resume", "--output", output, "--no-progress"]) == 0
+    assert f"at {2 * budget:,} of {2 * budget:,} agent-steps" in capsys.readouterr().out
 
 
 def test_cli_a_checkpoint_that_cannot_be_written_keeps_the_earlier_ones(tmp_path, capsys, monkeypatch):

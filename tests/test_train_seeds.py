@@ -169,6 +169,9 @@ def test_folders_holding_other_runs_are_refused_before_any_process_starts(two_se
     shutil.copytree(two_seeds[0], copy)
     code, _, err = run_main("train", "--resume", "--seed", "5", "--output", str(copy))
     assert code == 2 and "seed (seeds.json: 0, command: 5)" in err
+    # a larger budget extends a single run, not a --seeds run (whose finished seeds would be skipped)
+    code, _, err = run_main("train", "--resume", "--total-timesteps", "100000", "--output", str(copy))
+    assert code == 2 and f"train --resume --output {copy}/seedN --total-timesteps 100000" in err
 
 
 def test_neighbouring_seeds_env_copies_share_no_reset_seed(two_seeds):

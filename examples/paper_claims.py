@@ -11,6 +11,8 @@ since). One figure per claim
 (``claim_<k>_<name>.png``: the cells the claim compares, with their intervals). Nothing is tuned here.
 
     python examples/paper_claims.py --sweep runs/sweeps/coordination --burst-cells table1=10 burst30=30
+    python examples/paper_claims.py --sweep docs/results/coordination_round2_600 --burst-cells table1=10 burst30=30 \
+        --with-sweep docs/results/coordination_round2_independent_600   # the independent baseline, swept apart
 
 The claims (issue "The evidence"):
 
@@ -46,6 +48,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--actions", nargs="+", choices=ACTION_MODES, default=list(ACTION_MODES),
                         help="action modes, in the order reported (default: sampled, the paper's protocol, then mean)")
     parser.add_argument("--output", default=None, help="folder for claims.md/csv (default: the sweep folder)")
+    parser.add_argument("--with-sweep", nargs="+", default=[], metavar="SWEEP",
+                        help="other sweeps whose learners join the comparison (e.g. the independent baseline swept "
+                             "separately): same preset, --set, cells, episodes and seeds; their other action mode is "
+                             "measured into their own scores_<mode>.csv")
     return parser
 
 
@@ -186,6 +192,26 @@ def evaluate_sweep(sweep: Path, spec: dict, mode: str, skip: Collection[str] = (
     return run_scores(pd.concat(frames, ignore_index=True), [*CELL_COLUMNS, "variant", "train_seed", "trial_id"])
 
 
+SAME_EVALUATION = ("preset", "overrides", "eval_sets", "eval_episodes", "eval_seed")
+"""What a ``--with-sweep`` must share with ``--sweep``: its scores then come from the same cells and episodes."""
+
+
+def mode_scores(sweep: Path, spec: dict, mode: str, cache: Path) -> tuple[pd.DataFrame, str]:
+    """The sweep's run scores with ``mode`` actions: its ``scores.csv`` when it evaluated in that mode, else measured
+    here on its models (:func:`evaluate_sweep`) and kept in ``cache/scores_<mode>.csv``, which a later call extends
+    by the trials finished since. Returns the scores and where they come from."""
+    if mode == sweep_mode(spec):
+        return pd.read_csv(sweep / "scores.csv"), f"`{sweep}/scores.csv`"
+    path = cache / f"scores_{mode}.csv"
+    earlier = pd.read_csv(path) if path.exists() else None
+    done = set(earlier["trial_id"]) if earlier is not None else set()
+    if any(folder.name not in done for folder in finished_trial_dirs(sweep)):  # trials finished since
+        new = evaluate_sweep(sweep, spec, mode, skip=done)
+        write_text(path, pd.concat([earlier, new], ignore_index=True).to_csv(index=False) if earlier is not None
+                   else new.to_csv(index=False))
+    return pd.read_csv(path), f"`{path}`, measured by this script on the sweep's models"
+
+
 def claim_figures(
     scores: pd.DataFrame, base_cell: str, burst_cells: dict[str, float], p_fail_cells: list[str], output: Path
 ) -> list[Path]:
@@ -241,6 +267,16 @@ def main(argv: list[str] | None = None) -> None:
     if not (sweep / "scores.csv").exists():
         parser.error(f"--sweep: no scores.csv in {sweep} (run the sweep, or write its report, first)")
     spec = json.loads((sweep / "sweep.json").read_text())
+    others = []
+    for folder in map(Path, args.with_sweep):
+        if not (folder / "scores.csv").exists():
+            parser.error(f"--with-sweep: no scores.csv in {folder}")
+        other = json.loads((folder / "sweep.json").read_text())
+        differ = [key for key in SAME_EVALUATION if other.get(key) != spec.get(key)]
+        if differ:
+            parser.error(f"--with-sweep {folder}: its {', '.join(differ)} differ from --sweep's; the claims compare "
+                         "learners on the same cells and episodes")
+        others.append((folder, other))
     burst_cells = {}
     for item in args.burst_cells:
         name, _, length = item.partition("=")
@@ -254,17 +290,9 @@ def main(argv: list[str] | None = None) -> None:
              else "the sweep's episode seeds")
     tables, sections, first_scores = [], [], None
     for mode in dict.fromkeys(args.actions):  # in the given order, each once
-        if mode == sweep_mode(spec):
-            scores, source = pd.read_csv(sweep / "scores.csv"), "the sweep's `scores.csv`"
-        else:
-            path = output / f"scores_{mode}.csv"
-            earlier = pd.read_csv(path) if path.exists() else None
-            done = set(earlier["trial_id"]) if earlier is not None else set()
-            if any(folder.name not in done for folder in finished_trial_dirs(sweep)):  # trials finished since
-                new = evaluate_sweep(sweep, spec, mode, skip=done)
-                write_text(path, pd.concat([earlier, new], ignore_index=True).to_csv(index=False) if earlier is not None
-                           else new.to_csv(index=False))
-            scores, source = pd.read_csv(path), f"`{path.name}`, measured by this script on the sweep's models"
+        parts = [mode_scores(sweep, spec, mode, output), *(mode_scores(f, o, mode, f) for f, o in others)]
+        scores = pd.concat([part for part, _ in parts], ignore_index=True)
+        source = "; ".join(where for _, where in parts)
         first_scores = scores if first_scores is None else first_scores
         table = pd.DataFrame(check_claims(scores, args.base_cell, burst_cells, p_fail_cells))
         table.insert(0, "actions", mode)
@@ -273,8 +301,9 @@ def main(argv: list[str] | None = None) -> None:
         sections.append(f"## {mode.capitalize()} actions{note}\n\nScores from {source}; {seeds}.\n\n"
                         + to_markdown(table.drop(columns="actions")) + "\n")
     write_text(output / "claims.csv", pd.concat(tables, ignore_index=True).to_csv(index=False))
-    seeds_per_variant = pd.read_csv(sweep / "scores.csv").groupby("variant")["train_seed"].nunique().to_dict()
-    header = (f"Claims on sweep `{sweep}` (preset `{spec['preset']}`, overrides {spec['overrides']}; training seeds "
+    seeds_per_variant = first_scores.groupby("variant")["train_seed"].nunique().to_dict()
+    joined = f" with {', '.join(f'`{f}`' for f, _ in others)}" if others else ""
+    header = (f"Claims on sweep `{sweep}`{joined} (preset `{spec['preset']}`, overrides {spec['overrides']}; training seeds "
               f"per variant: {seeds_per_variant}). Means across training seeds with 95 % stratified-bootstrap "
               "intervals.\n\n")
     markdown = header + "\n".join(sections)

@@ -125,3 +125,27 @@ def test_a_second_call_measures_only_the_trials_finished_since(tmp_path, monkeyp
     assert measured == [["no_comm-seed0", "proposed-seed0"], ["proposed-seed1"]]
     kept = pd.read_csv(tmp_path / "scores_sampled.csv")
     assert sorted(kept["trial_id"].unique()) == ["no_comm-seed0", "proposed-seed0", "proposed-seed1"]
+
+
+def test_with_sweep_joins_another_sweeps_learners_on_the_same_cells(tmp_path, capsys):
+    import pytest
+
+    scores = synthetic_scores(no_comm=70.0)
+    main_dir, other_dir = tmp_path / "main", tmp_path / "independent"
+    eval_sets = [{"name": "table1", "overrides": {}, "conditions": None}]
+    spec = {"preset": "smoke", "overrides": {}, "eval_sets": eval_sets, "eval_seed": 1_000_000, "eval_episodes": 10,
+            "deterministic": False}
+    for folder, part in ((main_dir, scores[scores["variant"] != "independent"]),
+                         (other_dir, synthetic_scores(no_comm=80.0).query("variant == 'independent'"))):
+        folder.mkdir()
+        part.to_csv(folder / "scores.csv", index=False)
+        (folder / "sweep.json").write_text(json.dumps(spec))
+    paper_claims.main(["--sweep", str(main_dir), "--with-sweep", str(other_dir), "--actions", "sampled"])
+    claim_1 = pd.read_csv(main_dir / "claims.csv").iloc[0]
+    # the independent learner of the other sweep (75 %) is the best message-free learner, above no_comm's 70 %
+    assert claim_1["measured"].startswith("Proposed 90.00") and "vs independent 75.00" in claim_1["measured"]
+    assert f"with `{other_dir}`" in (main_dir / "claims.md").read_text()
+    (other_dir / "sweep.json").write_text(json.dumps({**spec, "eval_episodes": 5}))
+    with pytest.raises(SystemExit):
+        paper_claims.main(["--sweep", str(main_dir), "--with-sweep", str(other_dir), "--actions", "sampled"])
+    assert "its eval_episodes differ from --sweep's" in capsys.readouterr().err

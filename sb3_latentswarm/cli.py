@@ -579,7 +579,7 @@ def _command_train_seeds(args: argparse.Namespace, output: Path) -> int:
         cpu = f", {result.cpu_seconds:.0f} s CPU" if result.cpu_seconds is not None else ""
         took = f"{result.wall_seconds:.0f} s{cpu}"
         if result.status == "trained":
-            coverage = f", last rollout coverage {result.coverage:.3f}" if result.coverage is not None else ""
+            coverage = f", last rollout coverage {100 * result.coverage:.1f} %" if result.coverage is not None else ""
             print(f"seed {result.seed}: trained in {took}{coverage} ({result.folder / 'model.zip'})", flush=True)
         else:
             print(f"seed {result.seed}: {result.status} (exit code {result.exit_code}) after {took}; log {result.log}",
@@ -594,8 +594,8 @@ def _command_train_seeds(args: argparse.Namespace, output: Path) -> int:
         summary += f", {len(results) - len(trained) - len(failed)} stopped or not started"
     if coverages:
         summary += (
-            f"; last rollout coverage of the trained ones: mean {sum(coverages) / len(coverages):.3f} "
-            f"(min {min(coverages):.3f}, max {max(coverages):.3f})"
+            f"; last rollout coverage of the trained ones: mean {100 * sum(coverages) / len(coverages):.1f} % "
+            f"(min {100 * min(coverages):.1f}, max {100 * max(coverages):.1f})"
         )
     print(summary)
     if signum is not None:

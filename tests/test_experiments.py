@@ -218,6 +218,7 @@ def test_sweep_smoke_end_to_end_and_resume(tmp_path):
     for name in ("aggregate.md", "run.md", "intervals_coverage.png", "learning_curves.png"):
         assert (output / name).stat().st_size > 0, name
     assert "IQM [95 % CI]" in (output / "run.md").read_text()
+    assert not (output / "running").exists()  # the trials' work folder goes once they are all collected
 
     # --resume on a finished sweep retrains nothing and starts no Ray run
     models = {p: p.stat().st_mtime_ns for p in (output / "trials").glob("*/model.zip")}

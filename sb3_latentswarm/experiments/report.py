@@ -396,7 +396,8 @@ def write_report(output: str | Path, commit: str | None = None) -> pd.DataFrame:
         + (f"; grid {dict(spec.grid)}" if spec.grid else ""),
         f"budget: {_counts(pd.Series([r['budget_agent_steps'] for r in records]))} agent-steps per trial "
         f"(trained: {_counts(pd.Series([r['trained_agent_steps'] for r in records]))}; SB3 finishes the last rollout)",
-        f"evaluation: {_counts(scores['episodes'])} episodes per cell and run (scores.csv), env seeds "
+        f"evaluation: {_counts(scores['episodes'])} episode{'' if set(scores['episodes']) == {1} else 's'} per cell and "
+        "run (scores.csv), env seeds "
         f"{episodes['seed'].min()}..{episodes['seed'].max()} (episodes.csv), "
         f"{' and '.join(sorted({'mean' if r['deterministic'] else 'sampled' for r in records}))} actions; cells: {eval_sets}",
         "intervals: across training seeds, a run's score in a cell is its mean over the cell's episodes; IQM and mean "

@@ -17,6 +17,7 @@ checkpoint the trial reports to Tune when it is done. ``resume=True`` runs only 
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import json
 import os
@@ -400,6 +401,8 @@ def run_sweep(
             finally:
                 ray.shutdown()
         finished = finished_trials(output, spec)
+        with contextlib.suppress(OSError):  # the work folder of running trials, once none is left there
+            (output / "running").rmdir()
         write_report(output, commit)
     failed = [trial["trial_id"] for trial in pending if trial["trial_id"] not in finished]
     if failed:

@@ -199,13 +199,14 @@ def _trial_identity(trial: dict[str, Any]) -> dict[str, Any]:
     return json.loads(json.dumps(identity, default=repr))
 
 
-def _warm_start_record(spec: Any, earlier_dir: Path, progress: TuneProgress) -> dict[str, Any]:
-    """Start ``progress`` with the earlier trial's rows; return ``trial.json``'s ``warm_start`` entry."""
+def _warm_start_record(sweep: str, earlier_dir: Path, progress: TuneProgress) -> dict[str, Any]:
+    """Start ``progress`` with the earlier trial's rows (``earlier_dir``, a trial of the sweep folder ``sweep``);
+    return ``trial.json``'s ``warm_start`` entry."""
     earlier = json.loads((earlier_dir / "trial.json").read_text())
     rows = pd.read_csv(earlier_dir / "progress.csv")
     progress.rows = rows[[c for c in PROGRESS_COLUMNS if c in rows.columns]].to_dict("records")
     return {
-        "sweep": spec.warm_start,
+        "sweep": sweep,
         "agent_steps": int(earlier["trained_agent_steps"]),
         "train_seconds": earlier.get("train_seconds"),
         "commit": earlier.get("commit"),
@@ -288,7 +289,7 @@ def train_and_evaluate(
     earlier_dir = Path(spec.warm_start) / "trials" / trial["trial_id"] if spec.warm_start is not None else None
     if variant == "independent":
         if earlier_dir is not None:
-            warm_started = _warm_start_record(spec, earlier_dir, progress)
+            warm_started = _warm_start_record(spec.warm_start, earlier_dir, progress)
         independent = train_independent_ppo(
             env,
             preset.total_timesteps,
@@ -305,7 +306,7 @@ def train_and_evaluate(
         elif earlier_dir is not None:
             latent = LatentSwarmPPO.load(earlier_dir / "model.zip", env=env, device=device)
             latent.set_random_seed(warm_start_seed(train_seed, depth))
-            warm_started = _warm_start_record(spec, earlier_dir, progress)
+            warm_started = _warm_start_record(spec.warm_start, earlier_dir, progress)
         else:
             latent = preset.make_model(env, seed=train_seed, device=device, **variant_algo_kwargs(variant, preset.algo_kwargs))
         per_update = preset.agent_steps_per_update

@@ -1090,7 +1090,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_common(evaluate, None)
     evaluate.add_argument("--model", required=True, help="a LatentSwarmPPO model.zip (e.g. runs/demo/model.zip)")
     add_trust_pickle(evaluate)
-    evaluate.add_argument("--episodes", type=int_at_least(1), default=None, help="episodes per row (default: the preset's)")
+    evaluate.add_argument(
+        "--episodes", "--eval-episodes", dest="episodes", type=int_at_least(1), default=None,
+        help="episodes per row (default: the preset's; --eval-episodes is the same option, as in sweep)",
+    )
     add_eval_seed(evaluate)
     evaluate.add_argument("--p-fail-sweep", action="store_true", help="also run the p_f sweep of Table I (right)")
     evaluate.add_argument(
@@ -1147,7 +1150,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="continue the finished models of the sweep in SWEEP_DIR (same preset, grid and --set) up to "
         "--total-timesteps, instead of training from scratch; the trials' progress.csv start with that sweep's rows",
     )
-    sweep.add_argument("--eval-episodes", type=int_at_least(1), default=None, help="episodes per cell (default: the preset's)")
+    sweep.add_argument(
+        "--eval-episodes", "--episodes", dest="eval_episodes", type=int_at_least(1), default=None,
+        help="episodes per cell (default: the preset's; --episodes is the same option, as in evaluate)",
+    )
     sweep.add_argument(
         "--eval-seed", type=int_at_least(0), default=None,
         help="first evaluation episode seed, episode k uses eval_seed + k (default 1000000: above every training env "

@@ -201,3 +201,11 @@ def test_the_demo_script_runs_and_reads_its_tables(tmp_path):
         assert text in out, text
     reading = out.split("What the tables show:")[1].strip().splitlines()
     assert len([line for line in reading if line.startswith("- ")]) == 3
+
+
+@pytest.mark.parametrize("command, dest", [("evaluate", "episodes"), ("sweep", "eval_episodes")])
+@pytest.mark.parametrize("spelling", ["--episodes", "--eval-episodes"])
+def test_evaluate_and_sweep_take_both_spellings_of_the_episode_count(command, dest, spelling):
+    required = {"evaluate": ["--model", "m.zip"], "sweep": ["--preset", "smoke", "--seeds", "1"]}[command]
+    args = build_parser().parse_args([command, *required, spelling, "7"])
+    assert getattr(args, dest) == 7

@@ -502,8 +502,13 @@ def test_a_warm_start_that_cannot_continue_is_refused_before_training(tmp_path):
     budget = SweepSpec.create("smoke", 1).point_preset({}).total_timesteps
     with pytest.raises(ValueError, match="as many agent-steps as this sweep.s budget"):
         SweepSpec.create("smoke", 1, variants=["proposed"], warm_start=tmp_path / "a")
-    with pytest.raises(ValueError, match=r"other settings \(overrides: \{\} there, \{'p_fail': 0.5\} here\)"):
+    p_fail = SweepSpec.create("smoke", 1).point_preset({}).config.p_fail
+    differ = rf"\{{'proposed-seed0': \{{'p_fail': \({p_fail}, 0.5\)\}}\}}"
+    with pytest.raises(ValueError, match=rf"other settings than this sweep's \(there, here\): {differ}"):
         SweepSpec.create("smoke", 1, variants=["proposed"], overrides={"p_fail": 0.5}, warm_start=tmp_path / "a",
+                         total_timesteps=2 * budget)
+    with pytest.raises(ValueError, match=r"other settings \(grid: \{\} there, \{'p_fail': \[0.5\]\} here\)"):
+        SweepSpec.create("smoke", 1, variants=["proposed"], grid={"p_fail": [0.5]}, warm_start=tmp_path / "a",
                          total_timesteps=2 * budget)
     with pytest.raises(ValueError, match=r"not finished there: \['no_comm-seed0', 'proposed-seed1', 'no_comm-seed1'\]"):
         SweepSpec.create("smoke", 2, variants=["proposed", "no_comm"], warm_start=tmp_path / "a", total_timesteps=2 * budget)
@@ -513,6 +518,21 @@ def test_a_warm_start_that_cannot_continue_is_refused_before_training(tmp_path):
         SweepSpec.create("smoke", 1, variants=["proposed"], warm_start=tmp_path, total_timesteps=2 * budget)
     with pytest.raises(ValueError, match="--total-timesteps"):
         SweepSpec.create("smoke", 1, total_timesteps=0)
+
+
+def test_a_warm_start_compares_the_settings_the_earlier_trials_trained_with_not_todays_preset(tmp_path):
+    # as if the preset's default had changed since the earlier sweep trained (issue 21 changed coordination's epochs)
+    _finished_smoke_sweep(tmp_path / "a")
+    record_path = tmp_path / "a" / "trials" / "proposed-seed0" / "trial.json"
+    record = json.loads(record_path.read_text())
+    record["algo_kwargs"]["n_epochs"] = 2
+    record_path.write_text(json.dumps(record))
+    budget = SweepSpec.create("smoke", 1).point_preset({}).total_timesteps
+    with pytest.raises(ValueError, match=r"\{'n_epochs': \(2, 1\)\}.*for example --set n_epochs=2\)"):
+        SweepSpec.create("smoke", 1, variants=["proposed"], warm_start=tmp_path / "a", total_timesteps=2 * budget)
+    spec = SweepSpec.create("smoke", 1, variants=["proposed"], overrides={"n_epochs": 2}, warm_start=tmp_path / "a",
+                            total_timesteps=2 * budget)
+    assert spec.point_preset({}).algo_kwargs["n_epochs"] == 2
 
 
 def test_a_spec_written_before_budget_and_warm_start_existed_loads(tmp_path):

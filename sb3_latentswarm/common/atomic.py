@@ -15,7 +15,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-__all__ = ["atomic_path", "write_text", "write_bytes", "write_json", "probe_writable"]
+__all__ = ["atomic_path", "json_values", "write_text", "write_bytes", "write_json", "probe_writable"]
 
 
 def _file_mode(final: Path) -> int:
@@ -64,6 +64,12 @@ def write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
 def write_text(path: str | os.PathLike[str], text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` atomically."""
     write_bytes(path, text.encode("utf-8"))
+
+
+def json_values(obj: Any) -> Any:
+    """``obj`` as it reads back from JSON (tuples as lists; what JSON cannot hold, such as a schedule, as its
+    ``repr``): to compare settings in memory with settings read from a file."""
+    return json.loads(json.dumps(obj, default=repr))
 
 
 def write_json(path: str | os.PathLike[str], obj: Any) -> None:

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sb3_latentswarm.common.atomic import write_text
+from sb3_latentswarm.common.atomic import json_values, write_text
 from sb3_latentswarm.common.checks import check_bool, check_int
 from sb3_latentswarm.common.seeding import warm_start_seed
 from sb3_latentswarm.config import SwarmConfig
@@ -32,6 +32,7 @@ from sb3_latentswarm.experiments.trial import (
     all_conditions,
     default_eval_sets,
     training_env_seed,
+    training_settings,
     trial_preset,
     variant_algo_kwargs,
 )
@@ -139,8 +140,10 @@ class SweepSpec:
     warm_start: str | None = None
     """Folder of an earlier sweep (``--warm-start``): each trial continues that sweep's finished model of the same id
     (its weights, optimizer state and agent-step count; SB3's ``load`` + ``learn(reset_num_timesteps=False)``) up to
-    :attr:`total_timesteps`, instead of starting from scratch. The earlier sweep must have the same preset, grid and
-    ``--set`` overrides (the evaluation may differ); its progress rows open the trial's ``progress.csv``. ``None``: every
+    :attr:`total_timesteps`, instead of starting from scratch. The earlier sweep must have the same preset and grid, and
+    each of its trials must have trained with the settings this sweep's trial resolves to (``trial.json``'s
+    ``train_config``, ``algo_kwargs`` and ``n_envs``, so that ``--set`` can restore values a preset has changed since;
+    the evaluation may differ); its progress rows open the trial's ``progress.csv``. ``None``: every
     trial starts from a new model."""
 
     @classmethod
@@ -251,8 +254,9 @@ class SweepSpec:
         return 1 + SweepSpec.load(Path(self.warm_start) / "sweep.json").warm_start_depth
 
     def check_warm_start(self) -> None:
-        """Check that :attr:`warm_start` holds a sweep this one can continue: same preset, grid and ``--set`` overrides,
-        every trial of this sweep finished there (``trial.json``, ``model.zip``, ``progress.csv``), each at fewer
+        """Check that :attr:`warm_start` holds a sweep this one can continue: same preset and grid, every trial of this
+        sweep finished there (``trial.json``, ``model.zip``, ``progress.csv``) with the settings it resolves to here
+        (:func:`~sb3_latentswarm.experiments.trial.training_settings` against its ``trial.json``), each at fewer
         agent-steps than this sweep's budget.
 
         :raises ValueError: naming what differs or what is missing
@@ -261,17 +265,18 @@ class SweepSpec:
         if not (folder / "sweep.json").is_file():
             raise ValueError(f"--warm-start {folder}: no sweep.json there; give the folder of a finished sweep")
         earlier = SweepSpec.load(folder / "sweep.json")
-        names = ("preset", "grid", "overrides")
-        differ = [name for name in names if _jsonable(getattr(self, name)) != _jsonable(getattr(earlier, name))]
+        names = ("preset", "grid")
+        differ = [name for name in names if json_values(getattr(self, name)) != json_values(getattr(earlier, name))]
         if differ:
             sides = "; ".join(
-                f"{name}: {_jsonable(getattr(earlier, name))} there, {_jsonable(getattr(self, name))} here" for name in differ
+                f"{name}: {json_values(getattr(earlier, name))} there, {json_values(getattr(self, name))} here"
+                for name in differ
             )
             raise ValueError(
                 f"--warm-start {folder}: that sweep trained with other settings ({sides}); a continued trial must train "
                 "the same way (only --total-timesteps and the evaluation may change)"
             )
-        missing, too_long = [], {}
+        missing, too_long, settings_differ = [], {}, {}
         for point, preset in zip(self.grid_points(), self.trial_presets()):
             for seed in self.seeds:
                 for variant in self.variants:
@@ -280,11 +285,34 @@ class SweepSpec:
                     if not all((trial_dir / f).is_file() for f in ("trial.json", "model.zip", "progress.csv")):
                         missing.append(name)
                         continue
-                    steps = int(json.loads((trial_dir / "trial.json").read_text())["trained_agent_steps"])
+                    record = json.loads((trial_dir / "trial.json").read_text())
+                    # the settings it trained with, as recorded, not as the preset reads today: a preset's defaults
+                    # may have changed since (then --set gives the earlier values back)
+                    now = training_settings(variant, preset)
+                    changed = {
+                        key: (record.get(part, {}).get(key), value)
+                        for part in ("train_config", "algo_kwargs")
+                        for key, value in now[part].items()
+                        if record.get(part, {}).get(key) != value
+                    }
+                    if record.get("n_envs") != now["n_envs"]:
+                        changed["n_envs"] = (record.get("n_envs"), now["n_envs"])
+                    if changed:
+                        settings_differ[name] = changed
+                        continue
+                    steps = int(record["trained_agent_steps"])
                     if steps >= preset.total_timesteps:
                         too_long[name] = (steps, preset.total_timesteps)
         if missing:
             raise ValueError(f"--warm-start {folder}: these trials are not finished there: {missing}")
+        if settings_differ:
+            first = next(iter(settings_differ.values()))
+            fix = " ".join(f"{key}={there}" for key, (there, _) in first.items() if key != "policy_kwargs")
+            raise ValueError(
+                f"--warm-start {folder}: its trials trained with other settings than this sweep's (there, here): "
+                f"{settings_differ}; a continued trial must train the same way (only --total-timesteps and the "
+                f"evaluation may change): pass the earlier values with --set (for example --set {fix})"
+            )
         if too_long:
             raise ValueError(
                 f"--warm-start {folder}: trials already trained as many agent-steps as this sweep's budget, or more "
@@ -383,11 +411,6 @@ class SweepSpec:
             return cls.from_dict(json.loads(Path(path).read_text()))
         except (json.JSONDecodeError, KeyError, TypeError, ValueError) as error:
             raise ValueError(f"{path} is not a sweep spec ({error})") from None
-
-
-def _jsonable(value: Any) -> Any:
-    """``value`` as ``sweep.json`` holds it (tuples as lists), to compare a spec with one read back."""
-    return json.loads(json.dumps(value, default=repr))
 
 
 def _as_tuples(value: Any) -> Any:

@@ -25,6 +25,7 @@ import pandas as pd
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_latentswarm import evaluation
+from sb3_latentswarm.common.atomic import json_values
 from sb3_latentswarm.common.seeding import training_env_seed, warm_start_seed
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.presets import Preset, get_preset
@@ -105,6 +106,24 @@ def variant_algo_kwargs(variant: str, algo_kwargs: dict[str, Any]) -> dict[str, 
         return dict(algo_kwargs)
     policy_kwargs = {**algo_kwargs.get("policy_kwargs", {}), "message_substitute": TRAINING_SUBSTITUTES[variant]}
     return {**algo_kwargs, "policy_kwargs": policy_kwargs}
+
+
+def training_config(variant: str, preset: Preset) -> SwarmConfig:
+    """The env a variant trains on: the preset's, with every link down for ``no_comm`` (which is evaluated on the same
+    env as the others)."""
+    return preset.config.replace(link_mode="none") if variant == "no_comm" else preset.config
+
+
+def training_settings(variant: str, preset: Preset) -> dict[str, Any]:
+    """What decides how a trial trains, as ``trial.json`` records it: ``train_config`` (``SwarmConfig.to_dict``),
+    ``algo_kwargs`` (of ``LatentSwarmPPO``, or of the ``independent`` baseline's ``RecurrentPPO``) and ``n_envs``.
+    JSON types (lists, not tuples), so that a record read back compares equal."""
+    if variant == "independent":
+        algo_kwargs = preset.independent_ppo_kwargs()
+    else:
+        algo_kwargs = variant_algo_kwargs(variant, preset.algo_kwargs)
+    config = training_config(variant, preset).to_dict()
+    return json_values({"train_config": config, "algo_kwargs": algo_kwargs, "n_envs": preset.n_envs})
 
 
 class TuneProgress(BaseCallback):
@@ -196,7 +215,7 @@ def _trial_identity(trial: dict[str, Any]) -> dict[str, Any]:
     """What a trial's checkpoint must match to be continued: its id, variant, seed, grid point and the sweep spec."""
     keys = ("trial_id", "variant", "train_seed", "grid_point", "spec")
     identity = {key: trial[key] for key in keys[:-1]} | {"spec": trial["spec"].to_dict()}
-    return json.loads(json.dumps(identity, default=repr))
+    return json_values(identity)
 
 
 def _warm_start_record(sweep: str, earlier_dir: Path, progress: TuneProgress) -> dict[str, Any]:
@@ -261,8 +280,7 @@ def train_and_evaluate(
     spec = trial["spec"]
     variant, train_seed, grid_point = trial["variant"], int(trial["train_seed"]), dict(trial["grid_point"])
     preset = spec.point_preset(grid_point)
-    # no_comm trains the same architecture with every link down; it is evaluated on the same env as the others
-    train_config = preset.config.replace(link_mode="none") if variant == "no_comm" else preset.config
+    train_config = training_config(variant, preset)
     depth = spec.warm_start_depth  # a continued trial draws new episodes and random numbers (warm_start_seed)
     env_seed = warm_start_seed(training_env_seed(train_seed, preset.n_envs), depth)
     env = preset.make_env(env_seed, config=train_config)
@@ -350,12 +368,8 @@ def train_and_evaluate(
         "commit": trial["commit"],
         "machine": machine_summary(trained_on),
         "node": platform.node(),
-        "train_config": train_config.to_dict(),
+        **training_settings(variant, preset),  # train_config, algo_kwargs, n_envs
         "eval_config": preset.config.to_dict(),
-        "algo_kwargs": variant_algo_kwargs(variant, preset.algo_kwargs)
-        if variant != "independent"
-        else preset.independent_ppo_kwargs(),
-        "n_envs": preset.n_envs,
         "training_env_seeds": [env_seed, env_seed + preset.n_envs - 1],
         "eval_env_seeds": [spec.eval_seed, spec.eval_seed + spec.eval_episodes - 1],
         "budget_agent_steps": preset.total_timesteps,
@@ -369,7 +383,7 @@ def train_and_evaluate(
         # the first cell's proposed-condition means, for Tune's console
         "eval_coverage": float(episodes["coverage"].iloc[: spec.eval_episodes].mean()),
     }
-    write_json(output / "trial.json", json.loads(json.dumps(record, default=repr)))
+    write_json(output / "trial.json", json_values(record))
     return record
 
 
@@ -392,5 +406,7 @@ __all__ = [
     "train_and_evaluate",
     "trial_preset",
     "training_env_seed",
+    "training_config",
+    "training_settings",
     "variant_algo_kwargs",
 ]

@@ -1147,7 +1147,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sweep.add_argument(
         "--warm-start", default=None, metavar="SWEEP_DIR",
-        help="continue the finished models of the sweep in SWEEP_DIR (same preset, grid and --set) up to "
+        help="continue the finished models of the sweep in SWEEP_DIR (same preset, grid and trained settings) up to "
         "--total-timesteps, instead of training from scratch; the trials' progress.csv start with that sweep's rows",
     )
     sweep.add_argument(

@@ -228,8 +228,13 @@ def test_replayed_log_probs_match_the_rollout(action_distribution):
 
 # ---------------------------------------------------------------------------------------------- model files
 @pytest.mark.parametrize("name", sorted(REFERENCE_MODELS))
-def test_old_model_files_act_bit_identically(name):
-    """Recorded by tests/data/make_actor_reference.py before the actor options existed (commit 733f23f's parent)."""
+def test_old_model_files_act_as_recorded(name):
+    """Recorded by tests/data/make_actor_reference.py before the actor options existed (commit 733f23f's parent).
+
+    Bit for bit on the CPU that recorded it; another CPU rounds float32 GEMMs differently in the last bit (the file
+    comes from an Intel machine with AMX, CI also runs on AMD EPYC), hence relative 1e-5 (about 80 float32 ulps), far
+    below what a change of the actor (mapping, distribution, clamp) makes.
+    """
     reference = np.load(REFERENCE)
     ref = {key.split("/", 1)[1]: reference[key] for key in reference.files if key.startswith(f"{name}/")}
     model = LatentSwarmPPO.load(REFERENCE_MODELS[name], device="cpu")
@@ -258,7 +263,9 @@ def test_old_model_files_act_bit_identically(name):
             got["predict_actions"], predict_state = policy.predict(obs, predict_state, starts, deterministic=True)
             for key, value in got.items():
                 expected = ref["mean" if key == "actions_from_noise" else key][t]
-                np.testing.assert_array_equal(np.asarray(value), expected, err_msg=f"{name} step {t}: {key}")
+                np.testing.assert_allclose(
+                    np.asarray(value), expected, rtol=1e-5, atol=1e-5, err_msg=f"{name} step {t}: {key}"
+                )
 
 
 def test_new_model_files_record_the_actor_and_round_trip(tmp_path):

@@ -190,7 +190,7 @@ def test_train_states_the_budget_rounded_up_to_whole_rollouts(tmp_path, capsys):
         (["render", "--preset", "smoke", "--output", "episode"], "output must end in one of"),
         (["render", "--preset", "smoke", "--output", "episode.png"], "output must end in one of"),
         (["render", "--preset", "smoke", "--fps", "0"], "--fps: expected an int >= 1, got '0'"),
-        (["evaluate", "--model", "m.zip", "--episodes", "0"], "--episodes: expected an int >= 1, got '0'"),
+        (["evaluate", "--model", "m.zip", "--episodes", "0"], "--episodes/--eval-episodes: expected an int >= 1, got '0'"),
         (["train", "--preset", "smoke", "--total-timesteps", "-5"], "--total-timesteps: expected an int >= 1, got '-5'"),
         (["train", "--preset", "smoke", "--save-freq", "1e3"], "--save-freq: expected an int >= 0, got '1e3'"),
     ],

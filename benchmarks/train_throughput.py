@@ -7,7 +7,9 @@ default 256-wide predictor, decoder and critic; theirs with an LSTM of that size
 the same rollout length, minibatch size (in agent-steps) and number of epochs. After one warm-up update each, all
 models train in alternating blocks of whole updates (so that a change in the machine's load hits every model alike),
 on one torch thread, timed by this thread's CPU time (``time.thread_time``). Prints agent-steps per CPU second (and
-per wall second) of each, and the ratio ours / theirs per hidden size.
+per wall second) of each, and the ratio ours / theirs per hidden size. ``--autocast bf16`` adds a third model per
+hidden size, ``LatentSwarmPPO(autocast="bf16")`` (the ``paper`` preset's setting; ``RecurrentPPO`` has no such
+option), and its ratio to ``RecurrentPPO``.
 
 ``--backends``: ``LatentSwarmPPO`` with the preset's settings (default ``fast``) on the ``"supersuit"`` and the
 ``"batched"`` backend (same seed, hence the same episodes), updates timed in alternation after one warm-up update
@@ -18,6 +20,7 @@ this one thread) and wall seconds, and the ratio of the whole update (target >= 
 (``compile_latent_step=True``); the first (warm-up) update carries the compilation, whose cost is reported.
 
     python benchmarks/train_throughput.py --hidden 64 512 --blocks 2
+    python benchmarks/train_throughput.py --hidden 64 512 --blocks 2 --autocast bf16
     python benchmarks/train_throughput.py --backends --preset fast --iterations 2 --threads 1
     python benchmarks/train_throughput.py --compile --preset fast --iterations 2 --threads 1
 """
@@ -41,6 +44,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--chunk-length", type=int, default=32)
     parser.add_argument("--n-epochs", type=int, default=4)
     parser.add_argument("--blocks", type=int, default=2, help="alternating timing blocks per model")
+    parser.add_argument("--autocast", choices=["bf16"], default=None,
+                        help="also time LatentSwarmPPO(autocast=...) at each hidden size (default: float32 only)")
     parser.add_argument("--updates-per-block", type=int, default=1, help="updates per model per block")
     parser.add_argument("--iterations", type=int, default=3, help="updates timed per backend (--backends, --compile)")
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: the package default)")
@@ -81,32 +86,46 @@ class LearnTimer:
         self.agent_steps += updates * self.per_update
 
 
-def make_pair(hidden: int, n_envs: int, n_steps: int, chunk_length: int, n_epochs: int) -> dict[str, LearnTimer]:
-    """LatentSwarmPPO and RecurrentPPO at latent / LSTM size ``hidden``, same env, rollout, minibatch and epochs."""
+def make_pair(
+    hidden: int, n_envs: int, n_steps: int, chunk_length: int, n_epochs: int, autocast: str | None = None
+) -> dict[str, LearnTimer]:
+    """LatentSwarmPPO and RecurrentPPO at latent / LSTM size ``hidden``, same env, rollout, minibatch and epochs; with
+    ``autocast``, also ``LatentSwarmPPO(autocast=autocast)`` (keyed ``"LatentSwarmPPO (bf16)"``)."""
     config = SwarmConfig()  # the paper's observations: 50 x 50 map, N = 3
     batch_size = config.n_agents * chunk_length * 4  # agent-steps; 4 swarm sequences of chunk_length steps
     common = dict(n_steps=n_steps, batch_size=batch_size, n_epochs=n_epochs, seed=0, device="cpu")
-    ours = LatentSwarmPPO(
-        "LatentSwarmPolicy",
-        make_vec_env(n_envs, config=config, seed=0),
-        chunk_length=chunk_length,
-        policy_kwargs=dict(latent_dim=hidden),
-        **common,
-    )
+
+    def ours(precision: str | None) -> LearnTimer:
+        return LearnTimer(LatentSwarmPPO(
+            "LatentSwarmPolicy",
+            make_vec_env(n_envs, config=config, seed=0),
+            chunk_length=chunk_length,
+            policy_kwargs=dict(latent_dim=hidden),
+            autocast=precision,
+            **common,
+        ))
+
     theirs = RecurrentPPO(
         "MultiInputLstmPolicy",
         make_vec_env(n_envs, config=config, seed=0),
         policy_kwargs=dict(lstm_hidden_size=hidden, net_arch=[hidden]),
         **common,
     )
-    return {"LatentSwarmPPO": LearnTimer(ours), "RecurrentPPO": LearnTimer(theirs)}
+    timers = {"LatentSwarmPPO": ours(None), "RecurrentPPO": LearnTimer(theirs)}
+    if autocast is not None:
+        timers[f"LatentSwarmPPO ({autocast})"] = ours(autocast)
+    return timers
 
 
 def compare_recurrent_ppo(args: argparse.Namespace) -> None:
     """Agent-steps per CPU second of both algorithms at every ``--hidden`` size, in alternating blocks, one run."""
     th.set_num_threads(1)  # per-thread CPU time would miss the work of other threads
     load_before = os.getloadavg()
-    pairs = {hidden: make_pair(hidden, args.n_envs, args.n_steps, args.chunk_length, args.n_epochs) for hidden in args.hidden}
+    autocast = getattr(args, "autocast", None)
+    pairs = {
+        hidden: make_pair(hidden, args.n_envs, args.n_steps, args.chunk_length, args.n_epochs, autocast)
+        for hidden in args.hidden
+    }
     for _ in range(args.blocks):  # alternate, so that a change of the machine's load hits every model alike
         for pair in pairs.values():
             for timer in pair.values():
@@ -116,7 +135,8 @@ def compare_recurrent_ppo(args: argparse.Namespace) -> None:
     print(f"paper observations (50x50 map, N={config.n_agents}), n_envs={args.n_envs}, n_steps={args.n_steps}, "
           f"minibatch={config.n_agents * args.chunk_length * 4} agent-steps, epochs={args.n_epochs}, 1 torch thread; "
           f"{args.blocks} block(s) of {args.updates_per_block} update(s) per model after one warm-up update")
-    print(f"{os.cpu_count()} cores, load average {load_before[0]:.2f} before, {load_after[0]:.2f} after")
+    print(f"{os.cpu_count()} cores ({th.backends.cpu.get_cpu_capability()} kernels), load average {load_before[0]:.2f} "
+          f"before, {load_after[0]:.2f} after")
     print("| hidden | model | parameters | agent-steps per CPU s | agent-steps per wall s | CPU s per update |")
     print("|---:|---|---:|---:|---:|---:|")
     for hidden, pair in pairs.items():
@@ -126,9 +146,11 @@ def compare_recurrent_ppo(args: argparse.Namespace) -> None:
                 f"{timer.agent_steps / timer.wall:,.0f} | {timer.cpu * timer.per_update / timer.agent_steps:.2f} |"
             )
     for hidden, pair in pairs.items():
-        ours, theirs = pair["LatentSwarmPPO"], pair["RecurrentPPO"]
-        ratio = (ours.agent_steps / ours.cpu) / (theirs.agent_steps / theirs.cpu)
-        print(f"hidden {hidden}: LatentSwarmPPO / RecurrentPPO = {ratio:.2f}x (agent-steps per CPU second)")
+        theirs = pair["RecurrentPPO"]
+        for name, ours in pair.items():
+            if name != "RecurrentPPO":
+                ratio = (ours.agent_steps / ours.cpu) / (theirs.agent_steps / theirs.cpu)
+                print(f"hidden {hidden}: {name} / RecurrentPPO = {ratio:.2f}x (agent-steps per CPU second)")
 
 
 class UpdateTimer:

@@ -139,9 +139,12 @@ def test_compare_helper_reads_the_last_json_line_and_reports_failed_runs(tmp_pat
         compare.alternate(failing, [], "HEAD", 0)
 
 
-def test_train_throughput_compares_both_algorithms_per_hidden_size(capsys):
+@pytest.mark.parametrize("autocast", [None, "bf16"])
+def test_train_throughput_compares_both_algorithms_per_hidden_size(capsys, autocast):
     train_throughput = load_benchmark("train_throughput")
-    args = argparse.Namespace(hidden=[8, 16], n_envs=1, n_steps=8, chunk_length=4, n_epochs=1, blocks=2, updates_per_block=1)
+    args = argparse.Namespace(
+        hidden=[8, 16], n_envs=1, n_steps=8, chunk_length=4, n_epochs=1, blocks=2, updates_per_block=1, autocast=autocast
+    )
     try:
         train_throughput.compare_recurrent_ppo(args)
     finally:
@@ -150,7 +153,9 @@ def test_train_throughput_compares_both_algorithms_per_hidden_size(capsys):
     for hidden in (8, 16):
         assert f"| {hidden} | LatentSwarmPPO |" in out and f"| {hidden} | RecurrentPPO |" in out
         assert f"hidden {hidden}: LatentSwarmPPO / RecurrentPPO = " in out
-    assert "load average" in out
+        assert (f"| {hidden} | LatentSwarmPPO (bf16) |" in out) == (autocast == "bf16")
+        assert (f"hidden {hidden}: LatentSwarmPPO (bf16) / RecurrentPPO = " in out) == (autocast == "bf16")
+    assert "load average" in out and "kernels)" in out
 
 
 @pytest.fixture

@@ -10,7 +10,8 @@ on the machine inflates far less than wall time)::
 ``report`` reads several runs, groups them by label (the folder name without its ``-sN`` tail) and prints, per
 label, the agent-steps and CPU seconds at which the training coverage (``rollout/coverage``: the mean over the last
 ``stats_window_size`` finished episodes) first reaches a target, the final coverage, and the ratio to a reference
-label; it draws both curves (``--plot``)::
+label; it draws both curves (``--plot``). A run that never reaches the target counts with its whole budget, marked
+``>``: the label's mean is then a lower bound, and the ratio says so (``>=`` or ``<=``)::
 
     python examples/time_to_coverage.py report runs/ttc/*-s? --reference old --target 0.95 --plot curves.png
 
@@ -104,7 +105,7 @@ def _report(args: argparse.Namespace) -> None:
     print("| label | run | updates | agent-steps to target | CPU s to target | final coverage | CPU s per update |")
     print("|---|---|---|---|---|---|---|")
     for label, runs in groups.items():
-        hits_steps, hits_cpu = [], []
+        hits_steps, hits_cpu, censored = [], [], 0
         for name, data in runs:
             cpu, reconstructed = data["cpu"], False
             if np.isnan(cpu).all() and label in cpu_per_update:
@@ -112,19 +113,26 @@ def _report(args: argparse.Namespace) -> None:
                 reconstructed = True
             per_update = float(np.nanmedian(np.diff(cpu))) if np.isfinite(cpu).sum() > 2 else np.nan
             reached = np.flatnonzero(data["coverage"] >= args.target)
-            step = data["steps"][reached[0]] if len(reached) else np.nan
-            seconds = cpu[reached[0]] if len(reached) else np.nan
+            # a run that never reaches the target counts with its whole budget: a lower bound on its time to target
+            index, mark = (reached[0], "") if len(reached) else (len(cpu) - 1, "> ")
+            censored += not len(reached)
+            step, seconds = data["steps"][index], cpu[index]
             hits_steps.append(step)
             hits_cpu.append(seconds)
-            mark = " (reconstructed)" if reconstructed else ""
-            print(f"| {label} | {name} | {len(cpu)} | {step:,.0f} | {seconds:,.0f}{mark} | {data['coverage'][-1]:.4f} | "
-                  f"{per_update:.2f} |")
-        summary[label] = (np.mean(hits_steps), np.mean(hits_cpu))
+            mark_cpu = " (reconstructed)" if reconstructed else ""
+            print(f"| {label} | {name} | {len(cpu)} | {mark}{step:,.0f} | {mark}{seconds:,.0f}{mark_cpu} | "
+                  f"{data['coverage'][-1]:.4f} | {per_update:.2f} |")
+        summary[label] = (np.mean(hits_steps), np.mean(hits_cpu), censored)
     if args.reference in summary:
-        ref_steps, ref_cpu = summary[args.reference]
-        for label, (steps, seconds) in summary.items():
-            print(f"{label}: mean agent-steps to target {steps:,.0f} ({ref_steps / steps:.2f}x {args.reference}), "
-                  f"CPU s {seconds:,.0f} ({ref_cpu / seconds:.2f}x)")
+        ref_steps, ref_cpu, ref_censored = summary[args.reference]
+        for label, (steps, seconds, censored) in summary.items():
+            # censored runs make a mean a lower bound: the reference's raises the ratio, the label's lowers it
+            bound = "" if not (censored or ref_censored) or label == args.reference else (
+                ">= " if ref_censored and not censored else "<= " if censored and not ref_censored else "~ ")
+            note = f" ({censored} run(s) never reached it: mean is a lower bound)" if censored else ""
+            print(f"{label}: mean agent-steps to target {'>= ' if censored else ''}{steps:,.0f} "
+                  f"({bound}{ref_steps / steps:.2f}x {args.reference}), CPU s {'>= ' if censored else ''}{seconds:,.0f} "
+                  f"({bound}{ref_cpu / seconds:.2f}x){note}")
     if args.plot:
         import matplotlib
 

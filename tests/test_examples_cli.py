@@ -362,3 +362,27 @@ def test_dropout_diagnostics_smoke(tmp_path):
     assert table["condition"].tolist() == ["proposed", "hold_last"] and (table["episodes"] == 2).all()
     assert (tmp_path / "error_by_depth.png").stat().st_size > 0
     assert "Episode seeds 1000000-1000001, sampled actions" in (tmp_path / "dropout_diagnostics.md").read_text()
+
+
+def _progress(folder: Path, coverage: list[float], cpu_per_update: float) -> Path:
+    folder.mkdir(parents=True)
+    rows = ["time/total_timesteps,rollout/coverage,time/cpu_seconds"]
+    rows += [f"{1000 * (k + 1)},{c},{cpu_per_update * (k + 1)}" for k, c in enumerate(coverage)]
+    (folder / "progress.csv").write_text("\n".join(rows) + "\n")
+    return folder
+
+
+def test_time_to_coverage_report_counts_a_run_that_misses_the_target_as_a_lower_bound(tmp_path):
+    old = [_progress(tmp_path / "old-s0", [0.5, 0.8, 0.96, 0.97], 2.0),  # target at update 3: 3,000 steps, 6 CPU s
+           _progress(tmp_path / "old-s1", [0.5, 0.7, 0.8, 0.9], 2.0)]  # never: counted at 4,000 steps, 8 CPU s
+    new = [_progress(tmp_path / "new-s0", [0.6, 0.95, 0.97, 0.98], 1.0)]  # target at update 2: 2,000 steps, 2 CPU s
+    result = subprocess.run(
+        [sys.executable, str(ROOT / "examples" / "time_to_coverage.py"), "report", *map(str, old + new),
+         "--target", "0.95", "--reference", "old"],
+        capture_output=True, text=True, check=True,
+    )
+    out = result.stdout
+    assert "| old | old-s0 | 4 | 3,000 | 6 | 0.9700 | 2.00 |" in out
+    assert "| old | old-s1 | 4 | > 4,000 | > 8 | 0.9000 | 2.00 |" in out
+    assert "old: mean agent-steps to target >= 3,500 (1.00x old), CPU s >= 7 (1.00x) (1 run(s) never reached it" in out
+    assert "new: mean agent-steps to target 2,000 (>= 1.75x old), CPU s 2 (>= 3.50x)" in out

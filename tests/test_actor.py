@@ -328,7 +328,8 @@ def test_independent_baseline_trains_with_the_presets_ppo_settings():
     coordination = get_preset("coordination")
     kwargs = coordination.independent_ppo_kwargs()
     assert (kwargs["n_steps"], kwargs["batch_size"], kwargs["n_epochs"]) == (160, 3840, 3)
-    assert kwargs["learning_rate"] == 6e-4 and kwargs["policy_kwargs"] == {"log_std_init": -0.5}
+    assert kwargs["learning_rate"] == 1e-3 and kwargs["policy_kwargs"] == {"log_std_init": -0.5}
+    assert get_preset("random_corner").independent_ppo_kwargs()["learning_rate"] == 6e-4  # its results' setting
     smoke = get_preset("smoke")
     env = make_vec_env(smoke.n_envs, config=smoke.config, seed=0)
     model = train_independent_ppo(env, 1, device="cpu", **smoke.independent_ppo_kwargs()).model

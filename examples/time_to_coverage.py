@@ -56,8 +56,14 @@ def _train(args: argparse.Namespace) -> None:
     output = Path(args.output)
     if (output / "model.zip").exists():
         raise SystemExit(f"{output / 'model.zip'} exists: one run per folder")
-    env = preset.make_env(args.seed)
-    model = preset.make_model(env, seed=args.seed, verbose=0)
+    if hasattr(preset, "make_env"):
+        env = preset.make_env(args.seed)
+        model = preset.make_model(env, seed=args.seed, verbose=0)
+    else:  # a package from before Preset.make_env (b250de8 and older), run with PYTHONPATH to rerun old code
+        from sb3_latentswarm import LatentSwarmPPO, make_vec_env
+
+        env = make_vec_env(preset.n_envs, config=preset.config, seed=args.seed)
+        model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=args.seed, verbose=0, **preset.algo_kwargs)
     model.set_logger(configure(str(output), ["csv"]))
 
     class CPUSeconds(BaseCallback):
@@ -96,10 +102,18 @@ def _read(run: Path) -> dict[str, np.ndarray]:
 
 def _report(args: argparse.Namespace) -> None:
     cpu_per_update = dict(item.split("=") for item in args.cpu_per_update)
+    missing = [run for run in args.runs if not (Path(run) / "progress.csv").is_file()]
+    if missing:
+        raise SystemExit(f"no progress.csv in: {', '.join(missing)} (give the run folders of `train --output`)")
+    if args.plot and not Path(args.plot).resolve().parent.is_dir():
+        raise SystemExit(f"--plot {args.plot}: the folder {Path(args.plot).resolve().parent} does not exist")
     groups: dict[str, list[tuple[str, dict[str, np.ndarray]]]] = {}
     for run in map(Path, args.runs):
         label = re.sub(r"-s\d+$", "", run.name)
         groups.setdefault(label, []).append((run.name, _read(run)))
+    if args.reference not in groups:
+        raise SystemExit(f"--reference {args.reference!r} is none of the labels found: {', '.join(groups)} "
+                         "(a run folder's name without its -sN tail)")
     summary = {}
     print(f"target: training coverage >= {args.target}")
     print("| label | run | updates | agent-steps to target | CPU s to target | final coverage | CPU s per update |")
@@ -123,16 +137,19 @@ def _report(args: argparse.Namespace) -> None:
             print(f"| {label} | {name} | {len(cpu)} | {mark}{step:,.0f} | {mark}{seconds:,.0f}{mark_cpu} | "
                   f"{data['coverage'][-1]:.4f} | {per_update:.2f} |")
         summary[label] = (np.mean(hits_steps), np.mean(hits_cpu), censored)
-    if args.reference in summary:
-        ref_steps, ref_cpu, ref_censored = summary[args.reference]
-        for label, (steps, seconds, censored) in summary.items():
-            # censored runs make a mean a lower bound: the reference's raises the ratio, the label's lowers it
-            bound = "" if not (censored or ref_censored) or label == args.reference else (
-                ">= " if ref_censored and not censored else "<= " if censored and not ref_censored else "~ ")
-            note = f" ({censored} run(s) never reached it: mean is a lower bound)" if censored else ""
-            print(f"{label}: mean agent-steps to target {'>= ' if censored else ''}{steps:,.0f} "
-                  f"({bound}{ref_steps / steps:.2f}x {args.reference}), CPU s {'>= ' if censored else ''}{seconds:,.0f} "
-                  f"({bound}{ref_cpu / seconds:.2f}x){note}")
+    ref_steps, ref_cpu, ref_censored = summary[args.reference]
+    for label, (steps, seconds, censored) in summary.items():
+        # censored runs make a mean a lower bound: the reference's raises the ratio, the label's lowers it; with
+        # both censored the ratio of two lower bounds says nothing
+        both = censored and ref_censored and label != args.reference
+        bound = ">= " if ref_censored and not censored else "<= " if censored and not ref_censored else ""
+        ratios = f"{args.reference} / {label}: " + (
+            "n/a, both have runs that never reached it" if both
+            else f"{bound}{ref_steps / steps:.2f}x agent-steps, {bound}{ref_cpu / seconds:.2f}x CPU s"
+        )
+        note = f"; {censored} run(s) never reached it: the means are lower bounds" if censored else ""
+        print(f"{label}: mean agent-steps to target {'>= ' if censored else ''}{steps:,.0f}, "
+              f"CPU s {'>= ' if censored else ''}{seconds:,.0f} ({ratios}{note})")
     if args.plot:
         import matplotlib
 

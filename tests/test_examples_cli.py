@@ -172,6 +172,9 @@ def test_train_states_the_budget_rounded_up_to_whole_rollouts(tmp_path, capsys):
     assert main(["train", "--preset", "smoke", "--output", str(tmp_path), "--no-progress", "--total-timesteps", "130"]) == 0
     out = capsys.readouterr().out
     assert "for 240 agent-steps (130 rounded up to whole rollouts of 120): 2 swarms of 3, n_steps 20, 2 updates" in out
+    # the PPO settings a user would otherwise have to dig out of presets.py (smoke: the paper's step schedule)
+    assert "PPO: learning rate StepSchedule(0.0001, 1e-05, switch_fraction=" in out
+    assert "minibatch 30 agent-steps, 1 epoch\n" in out
     assert LatentSwarmPPO.load(tmp_path / "model.zip").num_timesteps == 240
 
 
@@ -384,5 +387,19 @@ def test_time_to_coverage_report_counts_a_run_that_misses_the_target_as_a_lower_
     out = result.stdout
     assert "| old | old-s0 | 4 | 3,000 | 6 | 0.9700 | 2.00 |" in out
     assert "| old | old-s1 | 4 | > 4,000 | > 8 | 0.9000 | 2.00 |" in out
-    assert "old: mean agent-steps to target >= 3,500 (1.00x old), CPU s >= 7 (1.00x) (1 run(s) never reached it" in out
-    assert "new: mean agent-steps to target 2,000 (>= 1.75x old), CPU s 2 (>= 3.50x)" in out
+    assert "old: mean agent-steps to target >= 3,500, CPU s >= 7 (old / old: 1.00x agent-steps, 1.00x CPU s; 1 run(s)" in out
+    assert "new: mean agent-steps to target 2,000, CPU s 2 (old / new: >= 1.75x agent-steps, >= 3.50x CPU s)" in out
+    never = subprocess.run(
+        [sys.executable, str(ROOT / "examples" / "time_to_coverage.py"), "report", *map(str, old + new),
+         "--target", "0.999", "--reference", "old"],
+        capture_output=True, text=True, check=True,
+    ).stdout
+    assert "old / new: n/a, both have runs that never reached it" in never
+    for bad, message in ((["--reference", "older"], "--reference 'older' is none of the labels found: old, new"),
+                         ([str(tmp_path / "nothing-s0")], "no progress.csv in:"),
+                         (["--plot", str(tmp_path / "no" / "curves.png")], "does not exist")):
+        result = subprocess.run(
+            [sys.executable, str(ROOT / "examples" / "time_to_coverage.py"), "report", *map(str, old + new), *bad],
+            capture_output=True, text=True,
+        )
+        assert result.returncode == 1 and message in result.stderr

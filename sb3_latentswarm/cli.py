@@ -338,6 +338,10 @@ def command_train(args: argparse.Namespace) -> int:
             f"{preset.config.n_agents}, n_steps {model.n_steps}, {end // per_rollout} updates, seed {args.seed} "
             f"({copies})"
         )
+        rate = model.learning_rate
+        rate_text = f"{rate:g}" if isinstance(rate, (int, float)) else repr(rate)
+        epochs = f"{model.n_epochs} epoch{'s' if model.n_epochs != 1 else ''}"
+        print(f"PPO: learning rate {rate_text}, minibatch {model.batch_size:,} agent-steps, {epochs}")
     print(f"Checkpoints every {save_freq:,} agent-steps in {checkpoint_dir} (keeping {args.keep_checkpoints})")
     print(f"If stopped, resume with: {_resume_command(output)}")  # now: a run killed by kill -9 prints nothing at its end
     start = time.perf_counter()

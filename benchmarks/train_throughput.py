@@ -48,7 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="also time LatentSwarmPPO(autocast=...) at each hidden size (default: float32 only)")
     parser.add_argument("--updates-per-block", type=int, default=1, help="updates per model per block")
     parser.add_argument("--iterations", type=int, default=3, help="updates timed per backend (--backends, --compile)")
-    parser.add_argument("--threads", type=int, default=0, help="torch threads (0: the package default)")
+    parser.add_argument("--threads", type=int, default=0,
+                        help="torch threads of --backends and --compile (0: the package default of one; the "
+                             "RecurrentPPO comparison always runs on one)")
     parser.add_argument("--backends", action="store_true", help="compare the vec env backends on a preset's update")
     parser.add_argument("--compile", action="store_true", help="compare the eager and the compiled latent step")
     parser.add_argument("--preset", default="fast", choices=sorted(PRESETS), help="preset of --backends and --compile")
@@ -252,6 +254,13 @@ def main() -> None:
                      "--iterations must be >= 1")
     if args.n_steps % args.chunk_length:
         parser.error(f"--chunk-length {args.chunk_length} must divide --n-steps {args.n_steps}")
+    if args.threads < 0:
+        parser.error(f"--threads must be >= 0 (0: the package default of one), got {args.threads}")
+    if args.autocast and (args.backends or args.compile):
+        parser.error("--autocast applies to the RecurrentPPO comparison only, not to --backends or --compile")
+    if args.threads > 1 and not (args.backends or args.compile):
+        parser.error("the RecurrentPPO comparison runs on one torch thread (it times this thread's CPU seconds); "
+                     "--threads applies to --backends and --compile")
     if args.threads:
         set_torch_threads(args.threads)
     if args.backends:

@@ -11,8 +11,8 @@
 #
 # To continue the committed results: cp -r docs/results/coordination runs/sweeps/coordination, then --resume.
 # The committed results were trained with the preset's first-round options (200 updates of minibatch 1,920, 5 epochs,
-# learning rate 3e-4: `git checkout b250de8` reproduces them); the preset now trains 300 updates of 3,840 / 3 / 6e-4
-# (docs/results/coordination_time_to_coverage/), the second round's setting (examples/round2_sweep.sh).
+# learning rate 3e-4: `git checkout b250de8` reproduces them); the preset now trains 300 updates of 3,840 / 3 / 1e-3
+# (docs/results/coordination_time_to_coverage/); the second round trained 3,840 / 3 / 6e-4 (examples/round2_sweep.sh).
 exec "${SB3_LATENTSWARM:-.venv/bin/sb3-latentswarm}" sweep --preset coordination --seeds 3 \
   --variant proposed no_comm independent \
   --set outage_model=gilbert_elliott mean_outage_steps=10 \

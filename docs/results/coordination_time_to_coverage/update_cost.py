@@ -6,7 +6,7 @@ the old side imports the package of git revision ``--old-rev`` (exported with ``
 the ratio of medians.
 
     python docs/results/coordination_time_to_coverage/update_cost.py --old-rev b250de8 --blocks 3 --updates 3 \\
-        --new-set batch_size=3840 n_epochs=3 learning_rate=0.0006
+        --new-set batch_size=3840 n_epochs=3 learning_rate=0.001
 """
 
 from __future__ import annotations

@@ -295,8 +295,8 @@ def _coordination() -> Preset:
     # Training options chosen for time to a trained swarm (docs/results/coordination_time_to_coverage/, issue 21):
     # minibatches of 3,840 agent-steps (2 per epoch), 3 epochs and a learning rate of 1e-3 cost 1.77x fewer CPU
     # seconds per update than the first round's 1,920 / 5 / 3e-4 with the code of that day (interleaved in one run)
-    # and reach the first round's final training coverage (95 %) in 1.02x fewer agent-steps, hence >= 1.71x sooner in
-    # logged CPU seconds (6 seeds each, one machine; >= 1.68x on seeds 3-5, outside the seeds the rate was picked on),
+    # and reach the first round's final training coverage (95 %) in >= 1.02x fewer agent-steps, hence >= 1.71x sooner in
+    # logged CPU seconds (6 seeds each, one machine; >= 1.73x on seeds 4-5, never run with this setting before),
     # with held-out coverage 97.11 % against 93.69 % (old code rerun) and 95.75 % (first round); 300 updates (2.3M
     # agent-steps) cost less CPU than the first round's 200. The second round's sweeps
     # (docs/results/coordination_round2*) trained with the earlier 6e-4 (their trial.json records it).
@@ -332,7 +332,7 @@ def _coordination() -> Preset:
         ),
         baseline_timesteps=updates * n_steps * n_envs * config.n_agents,
         eval_episodes=50,
-        description="20x20 cells of 2.5 m, corner launch, T=80: message-free heuristics lose 28 points (~10 min, 1 thread).",
+        description="20x20 cells of 2.5 m, corner launch, T=80: message-free heuristics lose 28 points (~5 min, 1 thread).",
     )
 
 

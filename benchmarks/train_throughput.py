@@ -123,9 +123,8 @@ def compare_recurrent_ppo(args: argparse.Namespace) -> None:
     """Agent-steps per CPU second of both algorithms at every ``--hidden`` size, in alternating blocks, one run."""
     th.set_num_threads(1)  # per-thread CPU time would miss the work of other threads
     load_before = os.getloadavg()
-    autocast = getattr(args, "autocast", None)
     pairs = {
-        hidden: make_pair(hidden, args.n_envs, args.n_steps, args.chunk_length, args.n_epochs, autocast)
+        hidden: make_pair(hidden, args.n_envs, args.n_steps, args.chunk_length, args.n_epochs, args.autocast)
         for hidden in args.hidden
     }
     for _ in range(args.blocks):  # alternate, so that a change of the machine's load hits every model alike

@@ -120,7 +120,7 @@ def alternate(
     :raise RuntimeError: a run failed
     """
     # imported here: the benchmark scripts import this module in their old-package runs too, which may predate it
-    from sb3_latentswarm.common.checks import check_int
+    from sb3_latentswarm.utils.checks import check_int
 
     check_int("--rounds", rounds, low=1)
     check_revision(rev)

@@ -21,9 +21,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sb3_latentswarm.cli import parse_overrides
-from sb3_latentswarm.common.atomic import write_text
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.presets import PRESETS, get_preset, override_targets
+from sb3_latentswarm.utils.atomic import write_text
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -66,7 +66,7 @@ from sb3_contrib import RecurrentPPO  # noqa: E402
 from sb3_latentswarm import LatentSwarmPPO, SwarmConfig  # noqa: E402
 from sb3_latentswarm.envs import make_vec_env  # noqa: E402
 from sb3_latentswarm.envs.vec_env import BACKENDS  # noqa: E402
-from sb3_latentswarm.threads import set_torch_threads  # noqa: E402
+from sb3_latentswarm.utils.threads import set_torch_threads  # noqa: E402
 
 
 class LearnTimer:

@@ -39,8 +39,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from sb3_latentswarm.common.atomic import write_text
 from sb3_latentswarm.presets import PRESETS, get_preset
+from sb3_latentswarm.utils.atomic import write_text
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -74,7 +74,7 @@ from sb3_latentswarm import LatentSwarmPPO, make_vec_env  # noqa: E402
 from sb3_latentswarm.envs.vec_env import BACKENDS  # noqa: E402
 
 try:
-    from sb3_latentswarm.threads import set_torch_threads
+    from sb3_latentswarm.utils.threads import set_torch_threads
 except ImportError:  # a package before the thread guard (measured by --compare)
     def set_torch_threads(threads: int) -> int:
         th.set_num_threads(threads)

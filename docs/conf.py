@@ -181,7 +181,7 @@ PRESETS_MARKER = "<!-- presets-table -->"
 
 
 def _learning_rate_text(learning_rate) -> str:
-    from sb3_latentswarm.common.schedules import StepSchedule
+    from sb3_latentswarm.latent_ppo.schedules import StepSchedule
 
     def number(value: float) -> str:
         return np.format_float_scientific(value, trim="-", exp_digits=1)

@@ -93,8 +93,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from dropout_diagnostics import DEPTH_LABELS, summarize_diagnostics  # noqa: E402  (the sibling example's table)
 
 from sb3_latentswarm import LatentSwarmPPO, SwarmConfig  # noqa: E402
-from sb3_latentswarm.common.atomic import atomic_path, write_text  # noqa: E402
-from sb3_latentswarm.common.checks import check_float, check_int  # noqa: E402
 from sb3_latentswarm.evaluation import (  # noqa: E402
     CONDITION_LABELS,
     DEPTH_COLUMNS,
@@ -105,6 +103,8 @@ from sb3_latentswarm.evaluation import (  # noqa: E402
 )
 from sb3_latentswarm.experiments.aggregate import aggregate_scores  # noqa: E402
 from sb3_latentswarm.experiments.run_record import git_commit, write_run_record  # noqa: E402
+from sb3_latentswarm.utils.atomic import atomic_path, write_text  # noqa: E402
+from sb3_latentswarm.utils.checks import check_float, check_int  # noqa: E402
 
 METRICS = ("coverage", "collisions", "dropout_share", "dropout_run_mean", "pred_error_dropout", *DEPTH_COLUMNS)
 """Per-cell means over the episodes (NaN-ignoring for the error columns), aggregated across models."""

@@ -33,7 +33,7 @@ import json
 from collections.abc import Collection
 from pathlib import Path
 
-from sb3_latentswarm.common.atomic import write_text
+from sb3_latentswarm.utils.atomic import write_text
 
 ACTION_MODES = ("sampled", "mean")
 """``--actions`` choices; ``deterministic`` of ``evaluate`` is ``mode == "mean"``."""

@@ -35,8 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sb3_latentswarm.common.atomic import atomic_path, probe_writable, write_json, write_text
 from sb3_latentswarm.presets import PRESETS, get_preset
+from sb3_latentswarm.utils.atomic import atomic_path, probe_writable, write_json, write_text
 
 ACTION_MODES = ("both", "sampled", "mean")
 DETERMINISTIC = {"sampled": False, "mean": True}
@@ -70,7 +70,7 @@ class Args:
     )
     model_notes: str | None = option(None, "how a --model was trained, written into run.md next to its path")
     device: str = option("auto", "torch device: auto, cpu or cuda")
-    threads: int = option(0, "torch CPU threads (0: the package default, one; see sb3_latentswarm.threads)")
+    threads: int = option(0, "torch CPU threads (0: the package default, one; see sb3_latentswarm.utils.threads)")
 
 
 def parse_args() -> Args:

@@ -175,7 +175,7 @@ def _report(args: argparse.Namespace) -> None:
         axes[0].legend()
         figure.suptitle(args.title)
         figure.tight_layout()
-        from sb3_latentswarm.common.atomic import atomic_path
+        from sb3_latentswarm.utils.atomic import atomic_path
 
         with atomic_path(args.plot) as tmp:
             figure.savefig(tmp, dpi=110, format="png")

@@ -20,9 +20,9 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback, ProgressBarCallback
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
-from sb3_latentswarm.common.checks import check_bool, check_float, check_int
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.evaluation import HELD_OUT_SEED, check_condition, evaluate
+from sb3_latentswarm.utils.checks import check_bool, check_float, check_int
 
 
 def whole_rollouts(timesteps: int, per_rollout: int) -> int:

@@ -20,9 +20,9 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from sb3_latentswarm.common.checks import check_int
-from sb3_latentswarm.common.seeding import training_env_seed
 from sb3_latentswarm.presets import PRESETS, Preset, get_preset, override_targets, unknown_settings_message
+from sb3_latentswarm.utils.checks import check_int
+from sb3_latentswarm.utils.seeding import training_env_seed
 from sb3_latentswarm.version import __version__
 
 
@@ -61,7 +61,7 @@ def parse_overrides(pairs: list[str]) -> dict[str, Any]:
 
 def int_at_least(low: int) -> Callable[[str], int]:
     """An argparse ``type`` that reads an integer >= ``low`` (``int_at_least(1)`` for counts, ``int_at_least(0)``
-    where 0 means "never"), checked by :func:`~sb3_latentswarm.common.checks.check_int`.
+    where 0 means "never"), checked by :func:`~sb3_latentswarm.utils.checks.check_int`.
 
     :return: the parser, which raises ``argparse.ArgumentTypeError`` (argparse prefixes the option's name)
     """
@@ -119,7 +119,7 @@ def _print_table(title: str, markdown: str) -> None:
 
 
 CHECKPOINTS = "checkpoints"
-"""Subfolder of ``train --output`` holding the run's checkpoints (:mod:`sb3_latentswarm.checkpoints`)."""
+"""Subfolder of ``train --output`` holding the run's checkpoints (:mod:`sb3_latentswarm.runs.checkpoints`)."""
 
 RESUME_SETTINGS = ("preset", "set", "seed", "env_seed", "total_timesteps", "backend")
 """The ``train`` options a checkpoint stores and ``--resume`` compares (given ones must match, except a larger
@@ -207,7 +207,7 @@ def _checked_training_preset(args: argparse.Namespace, n_seeds: int | None = Non
 
     :param n_seeds: ``None`` for one run (copies ``ENV_SEED .. ENV_SEED + n_envs - 1``, ``ENV_SEED`` defaulting to
         ``--seed``); else the number of seeds of ``train --seeds``, whose seed ``S + i`` trains the copies of
-        :func:`~sb3_latentswarm.common.seeding.training_env_seed` ``(S + i, n_envs)``
+        :func:`~sb3_latentswarm.utils.seeding.training_env_seed` ``(S + i, n_envs)``
     """
     from sb3_latentswarm.latent_ppo.latent_ppo import validate_algorithm_kwargs
 
@@ -237,18 +237,18 @@ def command_train(args: argparse.Namespace) -> int:
     ``seeds.json``) runs this command once per seed, in processes of their own (:func:`_command_train_seeds`).
     """
     from sb3_latentswarm.callbacks import RolloutProgressBarCallback, whole_rollouts
-    from sb3_latentswarm.checkpoints import (
+    from sb3_latentswarm.runs.checkpoints import (
         StopOnSignal,
         SwarmCheckpointCallback,
         configure_run_logger,
         default_save_freq,
         estimate_checkpoint_bytes,
         latest_checkpoint,
+        load_checkpoint,
         read_checkpoint_state,
     )
-    from sb3_latentswarm.common.atomic import probe_writable, write_json
-    from sb3_latentswarm.latent_ppo import LatentSwarmPPO
-    from sb3_latentswarm.train_seeds import SEEDS_RECORD
+    from sb3_latentswarm.runs.train_seeds import SEEDS_RECORD
+    from sb3_latentswarm.utils.atomic import probe_writable, write_json
 
     output = Path(args.output or f"runs/{args.preset or 'demo'}")
     args.output = str(output)
@@ -290,8 +290,8 @@ def command_train(args: argparse.Namespace) -> int:
     # every setting is checked here, by building the env and the model, before any folder is created
     env = preset.make_env(args.env_seed, backend=args.backend)
     tensorboard = args.tensorboard if args.tensorboard is not None else (state.get("settings") or {}).get("tensorboard")
-    if state:
-        model = LatentSwarmPPO.load_checkpoint(latest, env=env, device=args.device, tensorboard_log=tensorboard)
+    if state and latest is not None:
+        model = load_checkpoint(latest, env=env, device=args.device, tensorboard_log=tensorboard)
         model.verbose = args.verbose
     else:
         model = preset.make_model(env, seed=args.seed, device=args.device, verbose=args.verbose, tensorboard_log=tensorboard)
@@ -400,9 +400,9 @@ def _seed_argv(
     args: argparse.Namespace, settings: dict[str, Any], options: dict[str, Any], seed: int, resume: bool, n_envs: int
 ):
     """The ``sb3-latentswarm`` arguments that train (or, with ``resume``, continue) one seed of ``train --seeds``:
-    model seed ``seed``, env copies from :func:`~sb3_latentswarm.common.seeding.training_env_seed` ``(seed, n_envs)``
+    model seed ``seed``, env copies from :func:`~sb3_latentswarm.utils.seeding.training_env_seed` ``(seed, n_envs)``
     (a resumed seed takes both from its checkpoint)."""
-    from sb3_latentswarm.train_seeds import seed_folder
+    from sb3_latentswarm.runs.train_seeds import seed_folder
 
     folder = seed_folder(args.output, seed)
     argv = ["train", "--output", str(folder), "--no-progress", "--device", args.device, "--verbose", str(args.verbose)]
@@ -443,7 +443,7 @@ def _last_line(path: Path, limit: int = 300) -> str:
 
 def _command_train_seeds(args: argparse.Namespace, output: Path) -> int:
     """``train --seeds K [--jobs J]``: seeds ``S .. S+K-1`` in ``OUTPUT/seed{S+i}/``, each by the single-seed
-    ``train`` in a single-thread process of its own (:mod:`sb3_latentswarm.train_seeds`), at most J at a time.
+    ``train`` in a single-thread process of its own (:mod:`sb3_latentswarm.runs.train_seeds`), at most J at a time.
 
     Every argument, the preset's settings (by building the env and model of seed S) and the folders are checked
     before any process starts or any file is written. ``--resume`` (or the same command with ``--resume``) skips the
@@ -451,10 +451,10 @@ def _command_train_seeds(args: argparse.Namespace, output: Path) -> int:
 
     :return: 0; 1 when a seed failed; 128 + the signal's number when stopped by SIGINT / SIGTERM / SIGHUP
     """
-    from sb3_latentswarm.checkpoints import estimate_checkpoint_bytes, latest_checkpoint
-    from sb3_latentswarm.common.atomic import probe_writable, write_json
-    from sb3_latentswarm.threads import available_cores
-    from sb3_latentswarm.train_seeds import SEEDS_RECORD, SeedRun, run_seed_processes, seed_folder, seed_state
+    from sb3_latentswarm.runs.checkpoints import estimate_checkpoint_bytes, latest_checkpoint
+    from sb3_latentswarm.runs.train_seeds import SEEDS_RECORD, SeedRun, run_seed_processes, seed_folder, seed_state
+    from sb3_latentswarm.utils.atomic import probe_writable, write_json
+    from sb3_latentswarm.utils.threads import available_cores
 
     record_path = output / SEEDS_RECORD
     record: dict[str, Any] | None = None
@@ -641,7 +641,6 @@ def _evaluate_and_print(
 
     :raise ValueError: when ``output`` holds the tables of another evaluation (:func:`_check_evaluation_folder`)
     """
-    from sb3_latentswarm.common.atomic import atomic_path, write_json, write_text
     from sb3_latentswarm.evaluation import (
         CONDITIONS,
         evaluate,
@@ -651,6 +650,7 @@ def _evaluate_and_print(
         summarize,
         to_markdown,
     )
+    from sb3_latentswarm.utils.atomic import atomic_path, write_json, write_text
 
     record = _evaluation_record(preset, args, model_path or args.model, p_fail_sweep=p_fail_sweep, baselines=baselines)
     record = _check_evaluation_folder(output, record)
@@ -846,7 +846,7 @@ def _evaluation_folder(args: argparse.Namespace, record: dict[str, Any]) -> Path
 
 
 def command_evaluate(args: argparse.Namespace) -> int:
-    from sb3_latentswarm.common.atomic import probe_writable
+    from sb3_latentswarm.utils.atomic import probe_writable
 
     model = _load_model(args)
     preset = _preset_from_args(args, model)
@@ -988,7 +988,7 @@ def build_parser() -> argparse.ArgumentParser:
             type=int,
             default=0,
             help="torch CPU threads (default 0: the package default of one thread, the fastest for these small "
-            "recurrent nets on a loaded CPU; see sb3_latentswarm.threads)",
+            "recurrent nets on a loaded CPU; see sb3_latentswarm.utils.threads)",
         )
         p.add_argument("--no-progress", action="store_true", help="no progress bars (shown on a terminal otherwise)")
         p.add_argument(
@@ -1220,7 +1220,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.threads < 0:
         parser.exit(2, f"sb3-latentswarm {args.command}: error: --threads must be >= 0, got {args.threads}\n")
     if args.threads:
-        from sb3_latentswarm.threads import set_torch_threads
+        from sb3_latentswarm.utils.threads import set_torch_threads
 
         set_torch_threads(args.threads)  # warns once past the available cores
     try:

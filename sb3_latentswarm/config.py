@@ -14,7 +14,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from sb3_latentswarm.common import checks
+from sb3_latentswarm.utils import checks
 
 LINK_MODES = ("channel", "full", "full_in_range", "none")
 ACTION_FRAMES = ("world", "body")

@@ -16,8 +16,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from sb3_latentswarm.common.schedules import paper_learning_rate
 from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.latent_ppo.schedules import paper_learning_rate
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ from torch.distributions import Normal, TanhTransform, TransformedDistribution
 
 from sb3_latentswarm import LatentSwarmPPO, SwarmConfig, make_vec_env
 from sb3_latentswarm.cli import main, parse_overrides
-from sb3_latentswarm.common.serialization import read_data
+from sb3_latentswarm.latent_ppo.model_file import read_data
 from sb3_latentswarm.latent_ppo.policies import (
     LatentSwarmPolicy,
     TanhSquashedGaussianDistribution,

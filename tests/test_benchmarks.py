@@ -1,7 +1,7 @@
 """The speed benchmarks run on CPU at tiny sizes, and their machine-readable output keeps its documented format.
 
 ``benchmarks/update_time.py`` is the GPU benchmark (``--device cuda``); here it runs on CPU with the ``smoke`` preset.
-The thread guard of :mod:`sb3_latentswarm.threads` is tested here too.
+The thread guard of :mod:`sb3_latentswarm.utils.threads` is tested here too.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 import torch as th
 
-from sb3_latentswarm import threads
+from sb3_latentswarm.utils import threads
 
 BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
 

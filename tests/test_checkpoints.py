@@ -24,18 +24,19 @@ import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_latentswarm import LatentSwarmPPO, make_vec_env
-from sb3_latentswarm.checkpoints import (
+from sb3_latentswarm.cli import main
+from sb3_latentswarm.latent_ppo import model_file as serialization
+from sb3_latentswarm.latent_ppo.model_file import read_data
+from sb3_latentswarm.presets import get_preset
+from sb3_latentswarm.runs.checkpoints import (
     CheckpointError,
     SwarmCheckpointCallback,
     default_save_freq,
     latest_checkpoint,
     list_checkpoints,
+    load_checkpoint,
     read_checkpoint_state,
 )
-from sb3_latentswarm.cli import main
-from sb3_latentswarm.common import serialization
-from sb3_latentswarm.common.serialization import read_data
-from sb3_latentswarm.presets import get_preset
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = get_preset("smoke")
@@ -92,7 +93,7 @@ def test_resume_from_a_checkpoint_equals_the_uninterrupted_run(tmp_path):
 
     # stopped after update 2, resumed for the remaining 3: the same bits as the run that never stopped
     checkpoint = tmp_path / f"checkpoint_{2 * PER_UPDATE}_steps.zip"
-    resumed = LatentSwarmPPO.load_checkpoint(checkpoint, env=make_vec_env(SMOKE.n_envs, config=SMOKE.config, seed=99))
+    resumed = load_checkpoint(checkpoint, env=make_vec_env(SMOKE.n_envs, config=SMOKE.config, seed=99))
     assert resumed.num_timesteps == 2 * PER_UPDATE and resumed._n_updates == 2 * SMOKE.algo_kwargs["n_epochs"]
     resumed.learn(total - resumed.num_timesteps, reset_num_timesteps=False)
     assert_same_training_state(uninterrupted, resumed)
@@ -108,7 +109,7 @@ def test_resume_from_a_checkpoint_equals_the_uninterrupted_run(tmp_path):
     smoke_model().learn(total, callback=[StopMidRollout(), SwarmCheckpointCallback(0, cut)])
     (written,) = list_checkpoints(cut)
     assert written.name == f"checkpoint_{2 * PER_UPDATE}_steps.zip"
-    again = LatentSwarmPPO.load_checkpoint(written, env=make_vec_env(SMOKE.n_envs, config=SMOKE.config, seed=99))
+    again = load_checkpoint(written, env=make_vec_env(SMOKE.n_envs, config=SMOKE.config, seed=99))
     again.learn(total - again.num_timesteps, reset_num_timesteps=False)
     assert_same_training_state(uninterrupted, again)
 
@@ -125,7 +126,7 @@ def test_the_supersuit_backend_resumes_from_new_episodes(tmp_path):
 
     model = LatentSwarmPPO("LatentSwarmPolicy", supersuit_env(), seed=3, **SMOKE.algo_kwargs)
     model.learn(2 * PER_UPDATE, callback=SwarmCheckpointCallback(PER_UPDATE, tmp_path))
-    resumed = LatentSwarmPPO.load_checkpoint(latest_checkpoint(tmp_path), env=supersuit_env())
+    resumed = load_checkpoint(latest_checkpoint(tmp_path), env=supersuit_env())
     assert resumed._last_obs is None  # its env copies could not be saved: new episodes at the next learn
     for key, value in model.policy.state_dict().items():
         assert th.equal(value, resumed.policy.state_dict()[key]), key
@@ -149,14 +150,14 @@ def test_a_checkpoint_refuses_an_env_that_does_not_fit(tmp_path):
     model = smoke_model()
     model.learn(PER_UPDATE, callback=SwarmCheckpointCallback(PER_UPDATE, tmp_path))
     with pytest.raises(CheckpointError, match="slots|swarms"):
-        LatentSwarmPPO.load_checkpoint(latest_checkpoint(tmp_path), env=make_vec_env(3, config=SMOKE.config))
+        load_checkpoint(latest_checkpoint(tmp_path), env=make_vec_env(3, config=SMOKE.config))
     (tmp_path / "checkpoint_999_steps.zip").write_bytes(b"not a zip")
     with pytest.raises(CheckpointError, match="not a checkpoint"):
         read_checkpoint_state(tmp_path / "checkpoint_999_steps.zip")
 
 
 def test_progress_csv_resumes_after_the_checkpoint_without_a_row_cut_off_by_a_kill(tmp_path):
-    from sb3_latentswarm.checkpoints import ResumableCSVOutputFormat
+    from sb3_latentswarm.runs.checkpoints import ResumableCSVOutputFormat
 
     path = tmp_path / "progress.csv"
     path.write_text("a,time/total_timesteps\n1,120\n2,240\n3,360\n4,48")  # killed while writing the 4th row
@@ -285,7 +286,7 @@ def test_cli_resume_with_a_larger_budget_trains_the_run_on(tmp_path, capsys):
 
 
 def test_cli_a_checkpoint_that_cannot_be_written_keeps_the_earlier_ones(tmp_path, capsys, monkeypatch):
-    import sb3_latentswarm.checkpoints as checkpoints
+    import sb3_latentswarm.runs.checkpoints as checkpoints
 
     write, calls = checkpoints.write_bytes, []
 
@@ -384,7 +385,7 @@ TRIAL_SCRIPT = textwrap.dedent(
     """
     import json, sys, time
     from pathlib import Path
-    from sb3_latentswarm.checkpoints import SwarmCheckpointCallback
+    from sb3_latentswarm.runs.checkpoints import SwarmCheckpointCallback
     from sb3_latentswarm.experiments import SweepSpec
     from sb3_latentswarm.experiments.trial import train_and_evaluate
 

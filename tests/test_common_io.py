@@ -1,4 +1,4 @@
-"""The shared argument checks and atomic writes (sb3_latentswarm.common.checks / .atomic)."""
+"""The shared argument checks and atomic writes (sb3_latentswarm.utils.checks / .atomic)."""
 
 import math
 import os
@@ -6,8 +6,8 @@ import os
 import numpy as np
 import pytest
 
-from sb3_latentswarm.common import atomic
-from sb3_latentswarm.common.checks import check_bool, check_choice, check_float, check_int
+from sb3_latentswarm.utils import atomic
+from sb3_latentswarm.utils.checks import check_bool, check_choice, check_float, check_int
 
 
 def test_check_int_accepts_numpy_and_refuses_bool_and_range():

@@ -409,7 +409,7 @@ def test_stray_or_damaged_trial_folders_are_named(tmp_path, capsys, damage, mess
 
 @pytest.mark.slow  # a trial process trained, killed and resumed: 31 s at load 5 (the trial-level kill test stays fast)
 def test_a_sweep_trial_killed_mid_way_resumes_from_its_checkpoint(tmp_path):
-    from sb3_latentswarm.checkpoints import latest_checkpoint, read_checkpoint_state
+    from sb3_latentswarm.runs.checkpoints import latest_checkpoint, read_checkpoint_state
 
     spec = SweepSpec.create("smoke", 1, variants=["proposed"], eval_episodes=1)
     output = tmp_path / "sweep"
@@ -418,7 +418,8 @@ def test_a_sweep_trial_killed_mid_way_resumes_from_its_checkpoint(tmp_path):
     trial = plan_trials(spec, "test")[0]
     work = output / "running" / trial["trial_id"]  # where the sweep's trainable trains this trial
     script = (
-        "import json, sys, time\nfrom pathlib import Path\nfrom sb3_latentswarm.checkpoints import SwarmCheckpointCallback\n"
+        "import json, sys, time\nfrom pathlib import Path\n"
+        "from sb3_latentswarm.runs.checkpoints import SwarmCheckpointCallback\n"
         "from sb3_latentswarm.experiments import SweepSpec, train_and_evaluate\nwrite = SwarmCheckpointCallback.write\n"
         "def write_then_hang(self):\n    path = write(self)\n    print('CHECKPOINT', flush=True)\n    time.sleep(600)\n"
         "SwarmCheckpointCallback.write = write_then_hang\ntrial = json.loads(sys.argv[1])\n"

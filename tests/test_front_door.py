@@ -98,8 +98,11 @@ def test_common_names_load_on_first_use_through_the_same_mechanism():
         "import sys\n"
         "import sb3_latentswarm.common as common\n"
         "print('torch' in sys.modules, sorted(common.__all__) == sorted(n for n in dir(common) if n in common.__all__))\n"
-        "from sb3_latentswarm.common.value_norm import ValueNorm\n"
-        "print(common.ValueNorm is ValueNorm, 'ValueNorm' in vars(common))\n"
+        "from sb3_latentswarm.latent_ppo.value_norm import ValueNorm\n"
+        "import warnings\n"
+        "with warnings.catch_warnings(record=True) as caught:\n"
+        "    warnings.simplefilter('always')\n"
+        "    print(common.ValueNorm is ValueNorm, 'ValueNorm' in vars(common), caught[0].category.__name__)\n"
         "try:\n"
         "    common.ValueNormalizer\n"
         "except AttributeError as error:\n"
@@ -107,7 +110,7 @@ def test_common_names_load_on_first_use_through_the_same_mechanism():
     )
     assert run_python(code).splitlines() == [
         "False True",
-        "True True",
+        "True True DeprecationWarning",
         "module 'sb3_latentswarm.common' has no attribute 'ValueNormalizer'",
     ]
 
@@ -116,7 +119,7 @@ def test_the_threads_module_of_0_1_still_imports_from_its_old_path_with_a_deprec
     code = (
         "import warnings\n"
         "warnings.filterwarnings('error', message='sb3_latentswarm')\n"
-        "import sb3_latentswarm.threads as threads\n"  # the new path imports without a warning
+        "import sb3_latentswarm.utils.threads as threads\n"  # the new path imports without a warning
         "with warnings.catch_warnings(record=True) as caught:\n"
         "    warnings.simplefilter('always')\n"
         "    from sb3_latentswarm.common.threads import apply_default_torch_threads\n"
@@ -125,7 +128,7 @@ def test_the_threads_module_of_0_1_still_imports_from_its_old_path_with_a_deprec
     )
     assert run_python(code).splitlines() == [
         "True DeprecationWarning",
-        "sb3_latentswarm.common.threads moved to sb3_latentswarm.threads; the old path will be removed in 0.3",
+        "sb3_latentswarm.common.threads moved to sb3_latentswarm.utils.threads; the old path will be removed in 0.3",
     ]
 
 

@@ -12,9 +12,9 @@ from stable_baselines3.common.callbacks import CallbackList
 from torch.overrides import TorchFunctionMode
 
 from sb3_latentswarm import LatentSwarmPPO, SwarmConfig
-from sb3_latentswarm.common.value_norm import ValueNorm
 from sb3_latentswarm.envs import make_vec_env
 from sb3_latentswarm.latent_ppo.policies import SequenceLinear, gru_cell
+from sb3_latentswarm.latent_ppo.value_norm import ValueNorm
 
 SMALL = SwarmConfig(n_agents=3, grid_width=10, grid_height=10, max_steps=7, num_obstacles=5, p_fail=0.5)
 TINY_POLICY = dict(latent_dim=8, predictor_hidden=16, decoder_hidden=16, critic_hidden=16, actor_hidden=16)

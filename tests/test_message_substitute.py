@@ -6,11 +6,11 @@ import pytest
 import torch as th
 
 from sb3_latentswarm import LatentSwarmPPO, SwarmConfig
-from sb3_latentswarm.common.type_aliases import LatentState
 from sb3_latentswarm.envs import make_vec_env
 from sb3_latentswarm.evaluation import policy_switches
 from sb3_latentswarm.experiments.trial import variant_algo_kwargs
 from sb3_latentswarm.latent_ppo.policies import MESSAGE_SUBSTITUTES
+from sb3_latentswarm.latent_ppo.type_aliases import LatentState
 
 CONFIG = SwarmConfig(n_agents=2, grid_width=9, grid_height=9, max_steps=10, num_obstacles=0)
 TINY_POLICY = dict(latent_dim=6, predictor_hidden=8, decoder_hidden=8, critic_hidden=8, actor_hidden=8)

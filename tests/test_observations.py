@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from sb3_latentswarm.common import observations
 from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.envs import observations
 from sb3_latentswarm.envs.batched_core import SwarmBatch
 
 

@@ -13,9 +13,9 @@ from stable_baselines3.common.utils import LinearSchedule
 from sb3_latentswarm import LatentSwarmPPO, SwarmConfig, make_vec_env
 from sb3_latentswarm.baselines import IndependentRecurrentPPO
 from sb3_latentswarm.cli import main
-from sb3_latentswarm.common.schedules import StepSchedule
-from sb3_latentswarm.common.serialization import UnsafeModelFileError, read_data
 from sb3_latentswarm.evaluation import evaluate
+from sb3_latentswarm.latent_ppo.model_file import UnsafeModelFileError, read_data
+from sb3_latentswarm.latent_ppo.schedules import StepSchedule
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = SwarmConfig(n_agents=3, grid_width=10, grid_height=10, max_steps=30, num_obstacles=5)

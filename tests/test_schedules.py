@@ -2,7 +2,7 @@
 
 import pytest
 
-from sb3_latentswarm.common.schedules import StepSchedule, paper_learning_rate
+from sb3_latentswarm.latent_ppo.schedules import StepSchedule, paper_learning_rate
 
 
 def test_paper_schedule_switches_after_update_1000_of_1600():

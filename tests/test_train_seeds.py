@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 import torch as th
 
-import sb3_latentswarm.threads
+import sb3_latentswarm.utils.threads
 from sb3_latentswarm import LatentSwarmPPO
 from sb3_latentswarm.cli import main
-from sb3_latentswarm.train_seeds import (
+from sb3_latentswarm.runs.train_seeds import (
     SEEDS_RECORD,
     SeedRun,
     child_environment,
@@ -60,7 +60,7 @@ def two_seeds(tmp_path_factory) -> tuple[Path, str, str]:
     output = tmp_path_factory.mktemp("seeds") / "run"
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("PYTHONPATH", str(ROOT))
-        patch.setattr(sb3_latentswarm.threads, "available_cores", lambda: 1)
+        patch.setattr(sb3_latentswarm.utils.threads, "available_cores", lambda: 1)
         code, out, err = run_main("train", "--preset", "smoke", "--seeds", "2", "--jobs", "2", "--output", str(output))
     assert code == 0, out + err
     return output, out, err
@@ -198,7 +198,7 @@ def test_neighbouring_seeds_env_copies_share_no_reset_seed(two_seeds):
 
 
 def test_a_single_train_seed_keeps_its_env_copies_and_resume_keeps_the_env_seed(tmp_path):
-    from sb3_latentswarm.checkpoints import latest_checkpoint, list_checkpoints, read_checkpoint_state
+    from sb3_latentswarm.runs.checkpoints import latest_checkpoint, list_checkpoints, read_checkpoint_state
 
     output = tmp_path / "run"
     argv = ["train", "--preset", "smoke", "--seed", "1", "--total-timesteps", "240", "--save-freq", "120"]

@@ -7,8 +7,8 @@ from stable_baselines3.common.logger import configure
 from test_latent_ppo import SMALL, TINY_POLICY, collected_model, make_model, random_obs, random_state
 
 from sb3_latentswarm import LatentSwarmPPO
-from sb3_latentswarm.common.value_norm import ValueNorm
 from sb3_latentswarm.envs import make_vec_env
+from sb3_latentswarm.latent_ppo.value_norm import ValueNorm
 
 
 def test_value_norm_tracks_moments_and_inverts():

@@ -15,7 +15,7 @@ from sb3_latentswarm.baselines.planners import (
     SweepPlanner,
     WaypointState,
 )
-from sb3_latentswarm.threads import apply_default_torch_threads_once
+from sb3_latentswarm.utils.threads import apply_default_torch_threads_once
 
 apply_default_torch_threads_once()
 

@@ -16,8 +16,8 @@ from sb3_contrib import RecurrentPPO
 from stable_baselines3.common.type_aliases import MaybeCallback
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
-from sb3_latentswarm.common.observations import as_vec_observation
-from sb3_latentswarm.common.serialization import UnsafeModelFileError, load_plain, read_data, save_plain
+from sb3_latentswarm.envs.observations import as_vec_observation
+from sb3_latentswarm.latent_ppo.model_file import UnsafeModelFileError, load_plain, read_data, save_plain
 
 INDEPENDENT_KEYS = ("local_obs", "proprio")
 
@@ -70,7 +70,7 @@ class IndependentRecurrentPPO:
         """Load a ``RecurrentPPO`` saved by :meth:`save` (or trained on :class:`OwnObservationVecEnv` elsewhere).
 
         :param trust_pickle: also read SB3's own files, whose pickled attributes run code when loaded: only for
-            files you trust (see :mod:`sb3_latentswarm.common.serialization`)
+            files you trust (see :mod:`sb3_latentswarm.latent_ppo.model_file`)
         """
         if not Path(path).exists():
             raise ValueError(f"IndependentRecurrentPPO.load: no file at {path}")

@@ -24,8 +24,8 @@ serves any swarm size), hold the altitude at ``initial_altitude``, command no ya
 :meth:`LatentSwarmPolicy.predict`: ``predict`` returns it and takes it back at the next step; a NamedTuple of arrays
 whose leading dimension is the slot, reset where ``episode_start`` is 1.
 
-Positions and headings are read from ``proprio`` (e_t) with :func:`~sb3_latentswarm.common.observations.proprio_position`
-and :func:`~sb3_latentswarm.common.observations.proprio_heading`, the inverse of the env's normalization, and the
+Positions and headings are read from ``proprio`` (e_t) with :func:`~sb3_latentswarm.envs.observations.proprio_position`
+and :func:`~sb3_latentswarm.envs.observations.proprio_heading`, the inverse of the env's normalization, and the
 UAV's cell is ``floor(x / cell_size)`` as in the env.
 """
 
@@ -36,9 +36,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from sb3_latentswarm.common.checks import check_int
-from sb3_latentswarm.common.observations import ACTOR_OBS_KEYS, as_vec_observation, proprio_heading, proprio_position
 from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.envs.observations import ACTOR_OBS_KEYS, as_vec_observation, proprio_heading, proprio_position
+from sb3_latentswarm.utils.checks import check_int
 
 __all__ = [
     "COORDINATED_PLANNERS",

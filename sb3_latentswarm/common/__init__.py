@@ -1,30 +1,42 @@
-"""Shared building blocks of the latent-swarm algorithm: latent state, swarm rollout buffer, schedules, ValueNorm.
+"""Deprecated alias of 0.1's ``sb3_latentswarm.common`` (removed in 0.3).
 
-The names are loaded on first use (PEP 562), so that importing a torch-free module of this package
-(``common.schedules``, ``common.checks``) does not import torch.
+Its parts moved in 0.2: the algorithm's building blocks (``LatentState``, ``SwarmRolloutBuffer``, ``ValueNorm``,
+``StepSchedule``, ``paper_learning_rate``) to :mod:`sb3_latentswarm.latent_ppo`, plumbing to
+:mod:`sb3_latentswarm.utils`. The names still load from here, on first use (PEP 562), with a ``DeprecationWarning``.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import warnings
+from typing import TYPE_CHECKING, Any
 
 from sb3_latentswarm._lazy import lazy_exports
 
 _EXPORTS = {  # the module that defines them -> public names
-    "sb3_latentswarm.common.buffers": ("SwarmRolloutBuffer",),
-    "sb3_latentswarm.common.schedules": ("StepSchedule", "paper_learning_rate"),
-    "sb3_latentswarm.common.type_aliases": ("LatentState", "SwarmRolloutBufferSamples"),
-    "sb3_latentswarm.common.value_norm": ("ValueNorm",),
+    "sb3_latentswarm.latent_ppo.buffers": ("SwarmRolloutBuffer",),
+    "sb3_latentswarm.latent_ppo.schedules": ("StepSchedule", "paper_learning_rate"),
+    "sb3_latentswarm.latent_ppo.type_aliases": ("LatentState", "SwarmRolloutBufferSamples"),
+    "sb3_latentswarm.latent_ppo.value_norm": ("ValueNorm",),
 }
 
 if TYPE_CHECKING:
-    from sb3_latentswarm.common.buffers import SwarmRolloutBuffer
-    from sb3_latentswarm.common.schedules import StepSchedule, paper_learning_rate
-    from sb3_latentswarm.common.type_aliases import LatentState, SwarmRolloutBufferSamples
-    from sb3_latentswarm.common.value_norm import ValueNorm
+    from sb3_latentswarm.latent_ppo.buffers import SwarmRolloutBuffer
+    from sb3_latentswarm.latent_ppo.schedules import StepSchedule, paper_learning_rate
+    from sb3_latentswarm.latent_ppo.type_aliases import LatentState, SwarmRolloutBufferSamples
+    from sb3_latentswarm.latent_ppo.value_norm import ValueNorm
 
 
-__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
+_lazy_getattr, __dir__ = lazy_exports(__name__, _EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    value = _lazy_getattr(name)
+    warnings.warn(
+        f"sb3_latentswarm.common.{name} moved to {value.__module__}; the old path will be removed in 0.3",
+        DeprecationWarning,
+        stacklevel=2,
+    )
+    return value
 
 
 __all__ = [

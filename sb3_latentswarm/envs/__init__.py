@@ -4,7 +4,7 @@ from sb3_latentswarm.envs import swarm_recon_v0
 from sb3_latentswarm.envs.batched_core import SwarmBatch
 from sb3_latentswarm.envs.swarm_recon import ACTOR_OBS_KEYS, OBS_KEYS, STATE_OBS_KEYS, SwarmReconEnv, parallel_env
 from sb3_latentswarm.envs.vec_env import BatchedSwarmVecEnv, SwarmVecEnv, make_vec_env
-from sb3_latentswarm.threads import apply_default_torch_threads_once
+from sb3_latentswarm.utils.threads import apply_default_torch_threads_once
 
 apply_default_torch_threads_once()
 

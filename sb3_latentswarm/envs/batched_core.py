@@ -38,8 +38,8 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 
 from sb3_latentswarm.channel import XI_UNSET, A2AChannel, squared_distances
-from sb3_latentswarm.common.checks import check_int
-from sb3_latentswarm.common.observations import (
+from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.envs.observations import (
     ACTOR_OBS_KEYS,
     OBS_KEYS,
     PROPRIO_DIM,
@@ -50,8 +50,8 @@ from sb3_latentswarm.common.observations import (
     STATE_OBS_KEYS,
     proprio_normalization,
 )
-from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.envs.start_positions import sample_start_positions
+from sb3_latentswarm.utils.checks import check_int
 
 __all__ = [
     "check_actions",

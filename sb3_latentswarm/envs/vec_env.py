@@ -50,7 +50,6 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvO
 from supersuit.vector import ConcatVecEnv, ProcConcatVec
 from supersuit.vector.multiproc_vec import decompress_info, numpy_deepcopy
 
-from sb3_latentswarm.common.checks import check_int
 from sb3_latentswarm.config import SwarmConfig, resolve_config
 from sb3_latentswarm.envs.batched_core import (
     OBS_KEYS,
@@ -62,6 +61,7 @@ from sb3_latentswarm.envs.batched_core import (
     check_actions,
 )
 from sb3_latentswarm.envs.swarm_recon import SwarmReconEnv, render_frame
+from sb3_latentswarm.utils.checks import check_int
 
 __all__ = ["BACKENDS", "BatchedSwarmVecEnv", "SwarmVecEnv", "check_vec_normalize", "make_vec_env"]
 

@@ -37,9 +37,9 @@ import dataclasses
 from collections.abc import Iterator, Mapping
 from types import MappingProxyType
 
-from sb3_latentswarm.common.checks import check_float
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
+from sb3_latentswarm.utils.checks import check_float
 
 __all__ = [
     "CONDITIONS",

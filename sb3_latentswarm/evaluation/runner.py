@@ -26,7 +26,6 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
-from sb3_latentswarm.common.checks import check_bool, check_int
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.envs.batched_core import SwarmBatch
 from sb3_latentswarm.evaluation.actors import LatentActor, PredictActor
@@ -40,6 +39,7 @@ from sb3_latentswarm.evaluation.conditions import (
 from sb3_latentswarm.evaluation.diagnostics import EPISODE_COLUMNS, EpisodeDiagnostics
 from sb3_latentswarm.evaluation.paper import PAPER_P_FAILS
 from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
+from sb3_latentswarm.utils.checks import check_bool, check_int
 
 __all__ = [
     "EPISODE_COLUMNS",

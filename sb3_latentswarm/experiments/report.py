@@ -20,10 +20,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from sb3_latentswarm.common.atomic import atomic_path, write_text
 from sb3_latentswarm.experiments.aggregate import aggregate_scores, mean, stratified_bootstrap_ci
 from sb3_latentswarm.experiments.spec import SweepSpec, trial_id
 from sb3_latentswarm.experiments.trial import SCORE_METRICS, all_conditions, grid_labels, run_scores
+from sb3_latentswarm.utils.atomic import atomic_path, write_text
 
 METRIC_LABELS = {
     "coverage": "Coverage (%)",

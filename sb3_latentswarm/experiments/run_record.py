@@ -17,7 +17,7 @@ from pathlib import Path
 
 import torch as th
 
-from sb3_latentswarm.common.atomic import write_text
+from sb3_latentswarm.utils.atomic import write_text
 
 
 def git_commit() -> str:

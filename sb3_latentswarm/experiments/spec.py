@@ -21,9 +21,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sb3_latentswarm.common.atomic import json_values, write_text
-from sb3_latentswarm.common.checks import check_bool, check_int
-from sb3_latentswarm.common.seeding import warm_start_seed
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.experiments.trial import (
     EVAL_SEED_BASE,
@@ -37,6 +34,9 @@ from sb3_latentswarm.experiments.trial import (
     variant_algo_kwargs,
 )
 from sb3_latentswarm.presets import Preset, get_preset, override_targets, unknown_settings_message
+from sb3_latentswarm.utils.atomic import json_values, write_text
+from sb3_latentswarm.utils.checks import check_bool, check_int
+from sb3_latentswarm.utils.seeding import warm_start_seed
 
 __all__ = [
     "DEFAULT_VARIANTS",
@@ -248,7 +248,7 @@ class SweepSpec:
     @property
     def warm_start_depth(self) -> int:
         """0 for a sweep that trains from scratch; 1 + the depth of :attr:`warm_start`'s sweep for one that continues
-        it (the continuation's seed offset, :func:`~sb3_latentswarm.common.seeding.warm_start_seed`)."""
+        it (the continuation's seed offset, :func:`~sb3_latentswarm.utils.seeding.warm_start_seed`)."""
         if self.warm_start is None:
             return 0
         return 1 + SweepSpec.load(Path(self.warm_start) / "sweep.json").warm_start_depth

@@ -30,11 +30,11 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from sb3_latentswarm.common.atomic import write_json
-from sb3_latentswarm.common.checks import check_float
 from sb3_latentswarm.experiments.report import TRIAL_FILES, finished_trials
 from sb3_latentswarm.experiments.spec import SweepSpec, trial_id
 from sb3_latentswarm.experiments.trial import train_and_evaluate
+from sb3_latentswarm.utils.atomic import write_json
+from sb3_latentswarm.utils.checks import check_float
 
 __all__ = ["check_cluster", "check_storage", "plan_trials", "run_sweep", "select_trials", "sweep_lock"]
 

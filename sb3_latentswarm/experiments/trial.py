@@ -24,11 +24,11 @@ import numpy as np
 import pandas as pd
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_latentswarm import evaluation
-from sb3_latentswarm.common.atomic import json_values
-from sb3_latentswarm.common.seeding import training_env_seed, warm_start_seed
+import sb3_latentswarm.evaluation as evaluation
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.presets import Preset, get_preset
+from sb3_latentswarm.utils.atomic import json_values
+from sb3_latentswarm.utils.seeding import training_env_seed, warm_start_seed
 
 VARIANTS = ("proposed", "no_comm", "zero_substitute", "hold_last", "independent")
 """The learners a sweep trains: LatentSwarmPPO (``proposed``), the same trained without links (``no_comm``), the same
@@ -208,7 +208,7 @@ def finished_trial_dirs(output: Path) -> list[Path]:
 
 
 TRIAL_CHECKPOINTS = "checkpoints"
-"""Subfolder of a trial's work folder with its training checkpoints (:mod:`sb3_latentswarm.checkpoints`)."""
+"""Subfolder of a trial's work folder with its training checkpoints (:mod:`sb3_latentswarm.runs.checkpoints`)."""
 
 
 def _trial_identity(trial: dict[str, Any]) -> dict[str, Any]:
@@ -245,9 +245,9 @@ def train_and_evaluate(
 
     LatentSwarmPPO variants (all but ``independent``) write checkpoints into ``output/checkpoints/`` while they
     train; with ``resume`` (the default) a rerun into the same ``output`` continues from the newest one, exactly where
-    it stopped (same parameters as an uninterrupted trial, see :mod:`sb3_latentswarm.checkpoints`). The
+    it stopped (same parameters as an uninterrupted trial, see :mod:`sb3_latentswarm.runs.checkpoints`). The
     ``independent`` RecurrentPPO baseline has no checkpoints and restarts from zero. SIGINT / SIGTERM (in the main
-    thread) write a checkpoint and raise :class:`~sb3_latentswarm.checkpoints.TrainingInterrupted`.
+    thread) write a checkpoint and raise :class:`~sb3_latentswarm.runs.checkpoints.TrainingInterrupted`.
 
     :param trial: ``trial_id``, ``variant``, ``train_seed``, ``grid_point``, the sweep's
         :class:`~sb3_latentswarm.experiments.spec.SweepSpec` ``spec`` and ``commit``; see
@@ -260,22 +260,23 @@ def train_and_evaluate(
     :param keep_checkpoints: how many checkpoints to keep
     :return: the trial record (also written as ``trial.json``); ``episodes.csv`` holds one row per evaluation
         episode, ``progress.csv`` one row per rollout
-    :raise sb3_latentswarm.checkpoints.CheckpointError: for a checkpoint of another trial in ``output``, or any
+    :raise sb3_latentswarm.runs.checkpoints.CheckpointError: for a checkpoint of another trial in ``output``, or any
         checkpoint when ``resume`` is ``False``
     """
     from sb3_latentswarm.baselines.independent import IndependentRecurrentPPO, train_independent_ppo
-    from sb3_latentswarm.checkpoints import (
+    from sb3_latentswarm.experiments.run_record import machine_summary
+    from sb3_latentswarm.latent_ppo import LatentSwarmPPO
+    from sb3_latentswarm.runs.checkpoints import (
         CheckpointError,
         StopOnSignal,
         SwarmCheckpointCallback,
         TrainingInterrupted,
         default_save_freq,
         latest_checkpoint,
+        load_checkpoint,
         read_checkpoint_state,
     )
-    from sb3_latentswarm.common.atomic import atomic_path, probe_writable, write_json
-    from sb3_latentswarm.experiments.run_record import machine_summary
-    from sb3_latentswarm.latent_ppo import LatentSwarmPPO
+    from sb3_latentswarm.utils.atomic import atomic_path, probe_writable, write_json
 
     spec = trial["spec"]
     variant, train_seed, grid_point = trial["variant"], int(trial["train_seed"]), dict(trial["grid_point"])
@@ -320,7 +321,7 @@ def train_and_evaluate(
         model, trained_steps, trained_on = independent, independent.model.num_timesteps, independent.model.device
     else:
         if latest is not None:
-            latent = LatentSwarmPPO.load_checkpoint(latest, env=env, device=device)
+            latent = load_checkpoint(latest, env=env, device=device)
         elif earlier_dir is not None:
             latent = LatentSwarmPPO.load(earlier_dir / "model.zip", env=env, device=device)
             latent.set_random_seed(warm_start_seed(train_seed, depth))

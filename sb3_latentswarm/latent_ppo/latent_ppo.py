@@ -2,9 +2,9 @@
 
 A subclass of sb3-contrib's ``RecurrentPPO``. What it changes and why (see ``docs/algorithm.md``):
 
-* the recurrent state is a :class:`~sb3_latentswarm.common.LatentState` (map, task, memory, previous observation and
-  message), not LSTM (h, c) pairs;
-* :class:`~sb3_latentswarm.common.SwarmRolloutBuffer` keeps each swarm together and time-aligned in a minibatch,
+* the recurrent state is a :class:`~sb3_latentswarm.latent_ppo.type_aliases.LatentState` (map, task, memory,
+  previous observation and message), not LSTM (h, c) pairs;
+* :class:`~sb3_latentswarm.latent_ppo.buffers.SwarmRolloutBuffer` keeps each swarm together and time-aligned in a minibatch,
   replaying contiguous chunks from the stored latent state, because every agent's update reads its peers' states;
 * ``train`` minimizes L = -L_CLIP + c1 L_VF + c2 L_map + c3 L_pred - ent_coef * entropy in one gradient step per
   minibatch on all parameters;
@@ -36,15 +36,11 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from stable_baselines3.common.utils import FloatSchedule, explained_variance, obs_as_tensor, safe_mean
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
-from sb3_latentswarm.common.atomic import atomic_path
-from sb3_latentswarm.common.buffers import SwarmRolloutBuffer
-from sb3_latentswarm.common.checks import check_bool, check_choice, check_float, check_int
-from sb3_latentswarm.common.observations import STATE_OBS_KEYS
-from sb3_latentswarm.common.schedules import paper_learning_rate
-from sb3_latentswarm.common.serialization import UnsafeModelFileError, load_plain, read_data, save_plain
-from sb3_latentswarm.common.type_aliases import LatentState
 from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.envs.observations import STATE_OBS_KEYS
 from sb3_latentswarm.envs.vec_env import check_vec_normalize
+from sb3_latentswarm.latent_ppo.buffers import SwarmRolloutBuffer
+from sb3_latentswarm.latent_ppo.model_file import UnsafeModelFileError, load_plain, read_data, save_plain
 from sb3_latentswarm.latent_ppo.policies import (
     AUTOCAST_MODES,
     NEW_POLICY_KWARGS,
@@ -53,13 +49,17 @@ from sb3_latentswarm.latent_ppo.policies import (
     check_observation_space,
     with_legacy_defaults,
 )
+from sb3_latentswarm.latent_ppo.schedules import paper_learning_rate
+from sb3_latentswarm.latent_ppo.type_aliases import LatentState
+from sb3_latentswarm.utils.atomic import atomic_path
+from sb3_latentswarm.utils.checks import check_bool, check_choice, check_float, check_int
 from sb3_latentswarm.version import __version__
 
 SelfLatentSwarmPPO = TypeVar("SelfLatentSwarmPPO", bound="LatentSwarmPPO")
 
 SAVE_FORMAT = 2
 """Version of the saved-model layout; bumped when a change would make older files load wrongly. 2: plain data, no
-pickle (:mod:`sb3_latentswarm.common.serialization`); 1: SB3's pickled attributes, read only with ``trust_pickle``."""
+pickle (:mod:`sb3_latentswarm.latent_ppo.model_file`); 1: SB3's pickled attributes, read only with ``trust_pickle``."""
 
 PICKLED_SAVE_FORMATS = (1,)
 
@@ -516,7 +516,7 @@ class LatentSwarmPPO(RecurrentPPO):
         """Load a model; ``env`` may have another number of agents or env copies than the training env.
 
         Loading runs no code from the file: the attributes are plain JSON and the tensors are read with
-        ``torch.load(weights_only=True)`` (see :mod:`sb3_latentswarm.common.serialization`). ``kwargs`` replace saved
+        ``torch.load(weights_only=True)`` (see :mod:`sb3_latentswarm.latent_ppo.model_file`). ``kwargs`` replace saved
         constructor arguments and pass the constructor's checks. Files of another save format fail with a
         ``ValueError`` naming both versions instead of loading wrongly.
 
@@ -567,10 +567,11 @@ class LatentSwarmPPO(RecurrentPPO):
             )
 
     def save(self, path, exclude=None, include=None) -> None:
-        """Save the model as plain data and tensors (no pickle): see :mod:`sb3_latentswarm.common.serialization`.
+        """Save the model as plain data and tensors (no pickle): see :mod:`sb3_latentswarm.latent_ppo.model_file`.
 
         The file holds no path of this machine (an absolute ``tensorboard_log`` is not kept; a relative one is) and no
-        state of a rollout in progress (a checkpoint holds that: :meth:`load_checkpoint`). A path is written atomically:
+        state of a rollout in progress (a checkpoint holds that:
+        :func:`sb3_latentswarm.runs.checkpoints.load_checkpoint`). A path is written atomically:
         to a temporary file in the same folder, then renamed, so a failed save (full disk, size limit, Ctrl-C) leaves
         the earlier file intact. A missing suffix becomes ``.zip``, as in SB3.
         """
@@ -585,22 +586,6 @@ class LatentSwarmPPO(RecurrentPPO):
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(path) as tmp:  # a failed save leaves the earlier file as it was
             save_plain(self, tmp, exclude=exclude, include=include)
-
-    @classmethod
-    def load_checkpoint(cls, path, env: VecEnv, device: th.device | str = "auto", **kwargs) -> LatentSwarmPPO:
-        """Rebuild a run from a checkpoint of :class:`~sb3_latentswarm.checkpoints.SwarmCheckpointCallback`.
-
-        Continue with ``model.learn(total - model.num_timesteps, reset_num_timesteps=False)``: on the batched backend
-        the parameters then match a run that never stopped, bit for bit (see :mod:`sb3_latentswarm.checkpoints`).
-
-        :param env: the run's env (same config, backend and number of copies)
-        :param kwargs: passed to :meth:`load`
-        :raise sb3_latentswarm.checkpoints.CheckpointError: (a ``ValueError``) for a missing or damaged checkpoint or
-            an env that does not fit it
-        """
-        from sb3_latentswarm.checkpoints import load_checkpoint
-
-        return load_checkpoint(path, env=env, device=device, **kwargs)
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "_last_latent_state", "_swarm_summaries"]
@@ -914,9 +899,10 @@ class LatentSwarmPPO(RecurrentPPO):
     ) -> SelfLatentSwarmPPO:
         """Train for ``total_timesteps`` agent-steps (SB3's ``learn``).
 
-        With ``reset_num_timesteps=False`` (after :meth:`load` or :meth:`load_checkpoint`), ``total_timesteps`` are
+        With ``reset_num_timesteps=False`` (after :meth:`load` or
+        :func:`~sb3_latentswarm.runs.checkpoints.load_checkpoint`), ``total_timesteps`` are
         the steps still to run: the schedules continue from ``num_timesteps`` and TensorBoard logging continues in the
-        model's last run folder. Pass a :class:`~sb3_latentswarm.checkpoints.SwarmCheckpointCallback` as ``callback``
+        model's last run folder. Pass a :class:`~sb3_latentswarm.runs.checkpoints.SwarmCheckpointCallback` as ``callback``
         to write checkpoints a run can resume from exactly (``docs/long_runs.md``).
         """
         if self.env is None:

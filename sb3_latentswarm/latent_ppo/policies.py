@@ -36,16 +36,16 @@ from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 from torch.distributions import Normal
 
-from sb3_latentswarm.common.checks import check_choice, check_float, check_int
-from sb3_latentswarm.common.observations import (
+from sb3_latentswarm.envs.observations import (
     ACTOR_OBS_KEYS,
     POSITION_DIMS,
     PROPRIO_POSITION,
     STATE_OBS_KEYS,
     as_vec_observation,
 )
-from sb3_latentswarm.common.type_aliases import LatentState
-from sb3_latentswarm.common.value_norm import ValueNorm
+from sb3_latentswarm.latent_ppo.type_aliases import LatentState
+from sb3_latentswarm.latent_ppo.value_norm import ValueNorm
+from sb3_latentswarm.utils.checks import check_choice, check_float, check_int
 
 REQUIRED_KEYS = ACTOR_OBS_KEYS + STATE_OBS_KEYS
 """The first three entries of the proprioceptive state e_t are the (normalized) position p_t."""

@@ -22,7 +22,7 @@ starts new episodes (env seed ``seed + num_timesteps``), and is a continuation, 
 
 :class:`SwarmCheckpointCallback` writes them every ``save_freq`` agent-steps (atomically, keeping the last ``keep``);
 :func:`load_checkpoint` (also
-:meth:`LatentSwarmPPO.load_checkpoint <sb3_latentswarm.latent_ppo.LatentSwarmPPO.load_checkpoint>`) rebuilds the model
+:func:`load_checkpoint`) rebuilds the model
 with its env; :class:`StopOnSignal` turns SIGINT / SIGTERM into a clean stop at the next step.
 """
 
@@ -46,10 +46,10 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import CSVOutputFormat, HumanOutputFormat, Logger, TensorBoardOutputFormat
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
-from sb3_latentswarm.common.atomic import write_bytes, write_text
-from sb3_latentswarm.common.checks import check_int
-from sb3_latentswarm.common.signals import SignalHandlers
-from sb3_latentswarm.common.type_aliases import LatentState
+from sb3_latentswarm.utils.atomic import write_bytes, write_text
+from sb3_latentswarm.utils.checks import check_int
+from sb3_latentswarm.utils.signals import SignalHandlers
+from sb3_latentswarm.latent_ppo.type_aliases import LatentState
 
 __all__ = [
     "CHECKPOINT_FORMAT",
@@ -469,8 +469,8 @@ class SwarmCheckpointCallback(BaseCallback):
     """Write a checkpoint every ``save_freq`` agent-steps, at the end of training, and when training is stopped.
 
     Unlike SB3's ``CheckpointCallback`` (which saves the model only, counting vec-env steps), a checkpoint here holds
-    the whole run (see :mod:`sb3_latentswarm.checkpoints`), counts agent-steps (SB3's ``num_timesteps``), is written
-    atomically (:mod:`sb3_latentswarm.common.atomic`: a failed write leaves the earlier checkpoints intact) and only
+    the whole run (see :mod:`sb3_latentswarm.runs.checkpoints`), counts agent-steps (SB3's ``num_timesteps``), is written
+    atomically (:mod:`sb3_latentswarm.utils.atomic`: a failed write leaves the earlier checkpoints intact) and only
     the last ``keep`` are kept.
 
     The run state is captured at the start of every rollout (between two updates). When ``stop`` reports a signal,

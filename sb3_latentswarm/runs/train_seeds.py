@@ -2,7 +2,7 @@
 
 Seed ``S + i`` is trained by the single-seed command, ``python -m sb3_latentswarm.cli train --seed S+i --env-seed
 (S+i)*n_envs --output OUTPUT/seedS+i ...`` (env copy ``c`` seeded ``(S+i) * n_envs + c``, the rule of ``sweep``,
-:func:`~sb3_latentswarm.common.seeding.training_env_seed`: no two seeds share an env copy), in a process of its own
+:func:`~sb3_latentswarm.utils.seeding.training_env_seed`: no two seeds share an env copy), in a process of its own
 with one torch thread (``OMP_NUM_THREADS=1``, ``MKL_NUM_THREADS=1``), at most J processes at a time: there is one
 implementation of training, and every seed folder holds exactly what a single ``train`` writes (``model.zip``,
 ``config.json``, ``progress.csv``, ``checkpoints/``, the tables of ``--evaluate``), plus ``train.log``, the
@@ -11,7 +11,7 @@ process's output.
 Why processes and not threads: these recurrent networks are small, a training step is many short kernels, and a
 second OpenMP thread spin-waits for a core that another process holds. On this project's 2-core machine under load,
 a ``coordination`` update took 144 s with two torch threads against 2.7 s with one (0.02x), and the README's model
-trained at 0.06x of one thread's speed with two (:mod:`sb3_latentswarm.threads`). Independent seeds need no
+trained at 0.06x of one thread's speed with two (:mod:`sb3_latentswarm.utils.threads`). Independent seeds need no
 communication, so one single-thread process per core is the fastest way to use several cores, the way CleanRL's
 ``benchmark.py`` (``--num-seeds``, ``--workers``) and Ray Tune's ``with_resources({"cpu": 1})`` pack runs.
 
@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sb3_latentswarm.common.signals import SignalHandlers
+from sb3_latentswarm.utils.signals import SignalHandlers
 
 SEEDS_RECORD = "seeds.json"
 """Written into ``train --seeds``'s ``--output``: the run's settings, the number of seeds and each seed's result;
@@ -66,7 +66,7 @@ def seed_state(folder: str | Path, evaluate: bool = False) -> str:
     :return: ``"finished"`` (``model.zip``, and with ``evaluate`` the ``conditions`` table: skipped), ``"unfinished"``
         (checkpoints: continued with ``train --resume``), or ``"new"`` (trained from the start)
     """
-    from sb3_latentswarm.checkpoints import list_checkpoints
+    from sb3_latentswarm.runs.checkpoints import list_checkpoints
 
     folder = Path(folder)
     if (folder / "model.zip").is_file() and (not evaluate or (folder / "conditions.csv").is_file()):
@@ -220,7 +220,7 @@ def run_seed_processes(
     :raises ValueError: ``jobs`` or ``threads`` < 1
     :raises TypeError: ``jobs`` or ``threads`` not an int
     """
-    from sb3_latentswarm.common.checks import check_float, check_int
+    from sb3_latentswarm.utils.checks import check_float, check_int
 
     check_int("jobs", jobs, low=1)
     check_int("threads", threads, low=1)

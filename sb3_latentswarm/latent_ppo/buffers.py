@@ -23,7 +23,7 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import DictRolloutBuffer
 
-from sb3_latentswarm.common.type_aliases import LatentState, SwarmRolloutBufferSamples
+from sb3_latentswarm.latent_ppo.type_aliases import LatentState, SwarmRolloutBufferSamples
 
 
 class SwarmRolloutBuffer(DictRolloutBuffer):

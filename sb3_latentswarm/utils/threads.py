@@ -20,7 +20,7 @@ import warnings
 
 import torch as th
 
-from sb3_latentswarm.common.checks import check_int
+from sb3_latentswarm.utils.checks import check_int
 
 DEFAULT_TORCH_THREADS = 1
 """Intra-op threads of torch after ``import sb3_latentswarm``, unless the environment chose (below)."""

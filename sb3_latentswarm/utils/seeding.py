@@ -8,7 +8,7 @@ does), neighbouring training seeds share ``n_envs - 1`` copies: copy 1 of seed 0
 
 from __future__ import annotations
 
-from sb3_latentswarm.common.checks import check_int
+from sb3_latentswarm.utils.checks import check_int
 
 __all__ = ["WARM_START_SEED_STRIDE", "training_env_seed", "warm_start_seed"]
 

@@ -9,7 +9,7 @@ configs) as a cloudpickle blob in its ``data`` entry, and ``BaseAlgorithm.load``
 * every attribute the algorithm saves is encoded by :func:`to_plain`: JSON values as they are, and a closed set of
   types as tagged dicts: tuples, deques, NumPy arrays and scalars, gymnasium ``Box``/``Dict`` spaces,
   :class:`~sb3_latentswarm.SwarmConfig`, schedules (constant, SB3's ``LinearSchedule``,
-  :class:`~sb3_latentswarm.common.schedules.StepSchedule`), the policy class by its alias in ``policy_aliases``, and
+  :class:`~sb3_latentswarm.latent_ppo.schedules.StepSchedule`), the policy class by its alias in ``policy_aliases``, and
   classes of ``torch.nn`` / ``torch.optim`` by name. Anything else fails at save time with the attribute's name;
 * loading decodes only those tags (no import of a module named by the file, no call of a function it names), and
   rebuilds the model through its constructor, so that the constructor's checks apply to the saved values and to the
@@ -42,8 +42,8 @@ from gymnasium import spaces
 from stable_baselines3.common.save_util import load_from_zip_file, open_path, save_to_zip_file
 from stable_baselines3.common.utils import ConstantSchedule, FloatSchedule, LinearSchedule
 
-from sb3_latentswarm.common.schedules import StepSchedule
 from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.latent_ppo.schedules import StepSchedule
 
 PLAIN_FORMAT = 1
 """Version of the plain-data encoding, stored as ``data["plain_format"]``."""
@@ -184,7 +184,7 @@ def to_plain(value: Any, name: str, algorithm: type | None = None) -> Any:
         return schedule
     raise TypeError(
         f"{name}: a {type(value).__name__} cannot be stored as plain data; schedules must be numbers, "
-        f"stable_baselines3.common.utils.LinearSchedule or sb3_latentswarm.common.schedules.StepSchedule"
+        f"stable_baselines3.common.utils.LinearSchedule or sb3_latentswarm.latent_ppo.schedules.StepSchedule"
     )
 
 
@@ -220,7 +220,7 @@ def _array_from_plain(value: dict[str, Any]) -> np.ndarray:
     if math.prod(shape) > MAX_ARRAY_ELEMENTS:
         raise ValueError(
             f"an array or space of shape {tuple(shape)} has {math.prod(shape):,} elements, more than the limit of "
-            f"{MAX_ARRAY_ELEMENTS:,} (sb3_latentswarm.common.serialization.MAX_ARRAY_ELEMENTS)"
+            f"{MAX_ARRAY_ELEMENTS:,} (sb3_latentswarm.latent_ppo.model_file.MAX_ARRAY_ELEMENTS)"
         )
     values = np.asarray(value["__ndarray__"], dtype=dtype)
     if values.dtype.kind == "f" and np.isnan(values).any():
@@ -513,7 +513,7 @@ def read_data(path: str | pathlib.Path | io.BufferedIOBase) -> tuple[dict[str, A
             if size > MAX_DATA_BYTES:
                 raise ValueError(
                     f"{path}: its 'data' entry is {size:,} bytes, more than the limit of {MAX_DATA_BYTES:,} "
-                    f"(sb3_latentswarm.common.serialization.MAX_DATA_BYTES)"
+                    f"(sb3_latentswarm.latent_ppo.model_file.MAX_DATA_BYTES)"
                 )
             for name in TENSOR_ENTRIES:
                 if name in archive.namelist() and archive.getinfo(name).file_size > MAX_TENSOR_ENTRY_BYTES:

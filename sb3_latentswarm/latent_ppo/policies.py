@@ -46,6 +46,9 @@ from sb3_latentswarm.envs.observations import (
 from sb3_latentswarm.latent_ppo.type_aliases import LatentState
 from sb3_latentswarm.latent_ppo.value_norm import ValueNorm
 from sb3_latentswarm.utils.checks import check_choice, check_float, check_int
+from sb3_latentswarm.utils.threads import apply_default_torch_threads_once
+
+apply_default_torch_threads_once()  # the package's torch thread default (utils/threads.py), once per process
 
 REQUIRED_KEYS = ACTOR_OBS_KEYS + STATE_OBS_KEYS
 """The first three entries of the proprioceptive state e_t are the (normalized) position p_t."""

@@ -20,6 +20,8 @@ LINK_MODES = ("channel", "full", "full_in_range", "none")
 ACTION_FRAMES = ("world", "body")
 START_REGIONS = ("uniform", "corner", "random_corner")
 OUTAGE_MODELS = ("bernoulli", "gilbert_elliott")
+LINK_MODELS = ("a2a", "outage", "distance")
+DELAY_MODELS = ("fixed", "uniform", "geometric")
 
 
 INT_BOUNDS: dict[str, tuple[int, int]] = {
@@ -29,6 +31,8 @@ INT_BOUNDS: dict[str, tuple[int, int]] = {
     "grid_height": (1, 1000),
     "max_steps": (1, 1_000_000),
     "num_obstacles": (0, 1_000_000),
+    "message_delay": (0, 1000),
+    "message_expiry": (0, 1000),
 }
 """Allowed ranges (inclusive) of the integer fields (``docs/concepts.md``, "Bounds of SwarmConfig")."""
 
@@ -60,6 +64,7 @@ FLOAT_BOUNDS: dict[str, tuple[float, float, bool]] = {
     "noise_power": (1e-9, 1e6, False),
     "interference_max": (0.0, 1e6, False),
     "min_link_distance": (1e-3, 1e3, False),
+    "link_range": (0.0, 1e6, True),
 }
 """Allowed ranges of the real fields: ``(low, high, low_exclusive)``, ``high`` inclusive (``docs/concepts.md``).
 
@@ -184,6 +189,25 @@ class SwarmConfig:
     without abrupt failures (p_f = 0) is up with this probability under Eq. (1) (0.5: the median range, 36.4 m with
     the paper's constants)."""
 
+    # --- Link models and delay (extensions, opt-in; see sb3_latentswarm.links) ---
+    link_model: str = "a2a"
+    """*Extension.* Which links deliver (:func:`~sb3_latentswarm.links.make_link_model`). ``"a2a"`` (default): the
+    channel of Eq. (1). ``"outage"``: only the abrupt failures xi (Bernoulli(1 - p_f), or the Gilbert-Elliott chain
+    with ``outage_model="gilbert_elliott"``), whatever the distance. ``"distance"``: a link within ``link_range``
+    metres (3D) delivers unless xi fails it, one beyond never."""
+    link_range: float = 30.0
+    """*Extension.* The range in metres of ``link_model="distance"`` (and its ``link_mode="full_in_range"``)."""
+    message_delay: int = 0
+    """*Extension, opt-in.* D >= 0, the delay in steps of a message that gets through (``"fixed"``) or its mean
+    (``"uniform"``, ``"geometric"``). 0 (default, the paper's): every message arrives at the step it is sent, and the
+    observation has no ``link_age`` key. See ``docs/concepts.md``, "Delayed messages"."""
+    message_delay_model: str = "fixed"
+    """*Extension.* How the delay of each message (per directed link and step) is chosen: ``"fixed"`` (d = D),
+    ``"uniform"`` (d uniform on {0, ..., 2D}) or ``"geometric"`` (P(d >= k) = q^k, q = D / (1 + D))."""
+    message_expiry: int = 10
+    """*Extension.* E, the largest delay in steps at which a message still arrives; later ones are lost. With
+    ``"fixed"`` delays it must be >= ``message_delay``; unused when ``message_delay = 0``."""
+
     extra: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
     """Free-form metadata carried with the config (ignored by the env)."""
 
@@ -262,6 +286,18 @@ class SwarmConfig:
             raise ValueError(
                 f"SwarmConfig.start_region_size must be in (0, {shorter_side}] (the arena's shorter side in metres) for "
                 f"start_region={self.start_region!r}, got {self.start_region_size}"
+            )
+        if self.link_model not in LINK_MODELS:
+            raise ValueError(f"SwarmConfig.link_model must be one of {LINK_MODELS}, got {self.link_model!r}")
+        if self.message_delay_model not in DELAY_MODELS:
+            raise ValueError(
+                f"SwarmConfig.message_delay_model must be one of {DELAY_MODELS}, got {self.message_delay_model!r}"
+            )
+        if self.message_delay_model == "fixed" and self.message_expiry < self.message_delay:
+            raise ValueError(
+                f"SwarmConfig.message_expiry must be an int in [{self.message_delay}, {INT_BOUNDS['message_expiry'][1]}] "
+                f"(at least message_delay={self.message_delay}, or every message is lost) with "
+                f"message_delay_model='fixed', got {self.message_expiry}"
             )
         if self.outage_model not in OUTAGE_MODELS:
             raise ValueError(f"SwarmConfig.outage_model must be one of {OUTAGE_MODELS}, got {self.outage_model!r}")

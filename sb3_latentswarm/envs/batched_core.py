@@ -16,8 +16,10 @@ its slot in the batch:
   (``rng.uniform(-pi, pi, N)``), then the sensing and link draws below;
 * at each step: the actuation noise (``rng.standard_normal((N, 3))``, if ``actuation_noise_std > 0``), then
 * sensing: the reading flips (``rng.random((N, F*F))``, if ``sensor_flip_prob > 0``), then
-* links (``link_mode="channel"``): ``rng.standard_normal((N, N, 2))`` and ``rng.random((N, N + 1))``
-  (:meth:`~sb3_latentswarm.channel.A2AChannel.sample`'s order).
+* links: what the link model draws (:mod:`sb3_latentswarm.links`; the default A2A channel of Eq. (1):
+  ``rng.standard_normal((N, N, 2))`` and ``rng.random((N, N + 1))``, :meth:`~sb3_latentswarm.channel.A2AChannel.sample`'s
+  order; ``link_mode`` ``"full"``, ``"none"``, ``"full_in_range"``: nothing), then its delays (``rng.random((N, N))``,
+  only with drawn delays).
 
 These per-swarm draws are the only loops over swarms; everything else is one array operation for the batch.
 
@@ -37,10 +39,11 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import seeding
 
-from sb3_latentswarm.channel import XI_UNSET, A2AChannel, squared_distances
+from sb3_latentswarm.channel import squared_distances
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.envs.observations import (
     ACTOR_OBS_KEYS,
+    LINK_AGE_KEY,
     OBS_KEYS,
     PROPRIO_DIM,
     PROPRIO_ENERGY,
@@ -48,14 +51,17 @@ from sb3_latentswarm.envs.observations import (
     PROPRIO_POSITION,
     PROPRIO_VELOCITY,
     STATE_OBS_KEYS,
+    obs_keys,
     proprio_normalization,
 )
 from sb3_latentswarm.envs.start_positions import sample_start_positions
+from sb3_latentswarm.links import ALL, Swarms, make_link_model
 from sb3_latentswarm.utils.checks import check_int
 
 __all__ = [
     "check_actions",
     "ACTOR_OBS_KEYS",
+    "LINK_AGE_KEY",
     "OBS_KEYS",
     "PROPRIO_DIM",
     "STATE_OBS_KEYS",
@@ -81,15 +87,15 @@ SWARM_METHODS = ("swarm_summary", "set_positions")
 def agent_observation_space(config: SwarmConfig) -> spaces.Dict:
     """The observation space of one agent (see :mod:`sb3_latentswarm.envs.swarm_recon` for the content of each key)."""
     fw, n = config.footprint_width, config.n_agents
-    return spaces.Dict(  # a sequence keeps the keys in OBS_KEYS order (a plain dict would be sorted)
-        [
-            ("local_obs", spaces.Box(-1, 1, (fw * fw,), np.int8)),
-            ("proprio", spaces.Box(-np.inf, np.inf, (PROPRIO_DIM,), np.float32)),
-            ("link_row", spaces.Box(0.0, 1.0, (n,), np.float32)),
-            ("swarm_proprio", spaces.Box(-np.inf, np.inf, (n, PROPRIO_DIM), np.float32)),
-            ("global_map", spaces.Box(-1, 1, (config.grid_height, config.grid_width), np.int8)),
-        ]
-    )
+    boxes: dict[str, spaces.Space] = {
+        "local_obs": spaces.Box(-1, 1, (fw * fw,), np.int8),
+        "proprio": spaces.Box(-np.inf, np.inf, (PROPRIO_DIM,), np.float32),
+        "link_row": spaces.Box(0.0, 1.0, (n,), np.float32),
+        LINK_AGE_KEY: spaces.Box(0.0, float(config.message_expiry), (n,), np.float32),  # only with delay (opt-in)
+        "swarm_proprio": spaces.Box(-np.inf, np.inf, (n, PROPRIO_DIM), np.float32),
+        "global_map": spaces.Box(-1, 1, (config.grid_height, config.grid_width), np.int8),
+    }
+    return spaces.Dict([(key, boxes[key]) for key in obs_keys(config)])  # a sequence keeps this order
 
 
 def check_actions(actions: Any, shape: tuple[int, ...], layout: str, n_agents: int) -> np.ndarray:
@@ -143,11 +149,6 @@ def agent_action_space() -> spaces.Box:
     return spaces.Box(-1.0, 1.0, (4,), np.float32)
 
 
-#: Swarm selection of the internals: an index array, or :data:`ALL` (a slice: views instead of gathered copies).
-Swarms = np.ndarray | slice
-ALL = slice(None)
-
-
 def _read_only(array: np.ndarray) -> np.ndarray:
     array.flags.writeable = False
     return array
@@ -174,7 +175,7 @@ class SwarmBatch:
         self.n_agents = n = config.n_agents
         width, height, r = config.grid_width, config.grid_height, config.sensor_range
         fw = config.footprint_width
-        self.channel = A2AChannel(config)
+        self.link_model = make_link_model(config, b)
 
         # Constants of the hot path.
         x_max, y_max = config.arena_size
@@ -219,7 +220,7 @@ class SwarmBatch:
         # Kinematic state [p (3), v (3), chi, b] of every UAV, so e_t is one affine map of it.
         self.kinematics = np.zeros((b, n, PROPRIO_DIM))  # (B, N, 8)
         self._links = np.zeros((b, n, n), dtype=bool)  # [b, i, j]: receiver i got sender j
-        self._xi_state = np.full((b, n, n), XI_UNSET, dtype=np.int8)  # outage state of every directed link
+        self._link_ages = np.zeros((b, n, n), dtype=np.int16) if self.link_model.has_delay else None  # steps late
         self.footprint = np.zeros((b, n, fw * fw), dtype=np.intp)  # padded index of every sensed cell
         self.t = np.zeros(b, dtype=np.int64)
         self.n_covered = np.zeros(b, dtype=np.int64)
@@ -236,6 +237,7 @@ class SwarmBatch:
         self.local_obs = _read_only(np.full((b, n, fw * fw), -1, dtype=np.int8))
         self.proprio = _read_only(np.zeros((b, n, PROPRIO_DIM), dtype=np.float32))
         self.link_rows = _read_only(np.zeros((b, n, n), dtype=np.float32))
+        self.link_ages = _read_only(np.zeros((b, n, n), dtype=np.float32)) if self.link_model.has_delay else None
         self.global_map = _read_only(np.full((b, height, width), -1, dtype=np.int8))
 
     # ------------------------------------------------------------------ per-swarm state (copies)
@@ -367,7 +369,7 @@ class SwarmBatch:
         self._n_dropouts[idx] = 0
         self._n_link_draws[idx] = 0
         self._reward_terms[idx] = 0.0
-        self._xi_state[idx] = XI_UNSET  # the outage chains restart from their stationary distribution
+        self.link_model.reset(idx)  # e.g. the outage chains restart from their stationary distribution
 
         readings, n_new, _ = self._sense(idx)
         self.n_covered[idx] = n_new
@@ -520,23 +522,11 @@ class SwarmBatch:
         :param distances2: their squared pairwise distances, if computed already.
         """
         pos = self.kinematics[idx, :, PROPRIO_POSITION]
-        if self.channel.link_mode == "channel":
-            n = self.n_agents
-            normals = np.empty((len(pos), n, n, 2))
-            uniforms = np.empty((len(pos), n, n + 1))
-            for k, swarm in enumerate(self._listed(idx)):
-                rng = self._rng(swarm)
-                rng.standard_normal(out=normals[k])
-                rng.random(out=uniforms[k])
-            if self.channel.stateful_outages:  # Gilbert-Elliott: xi follows each link's Markov chain
-                xi_state = self._xi_state[idx]
-                links = self.channel.links_from_variates(pos, normals, uniforms, xi_state, distances2)
-                self._xi_state[idx] = xi_state  # advanced in place (on a copy when idx gathers swarms)
-            else:
-                links = self.channel.links_from_variates(pos, normals, uniforms, distances2=distances2)
-        else:
-            links = self.channel.sample(pos, None)
+        rngs = [self._rng(swarm) for swarm in self._listed(idx)]
+        links, ages = self.link_model.step(idx, rngs, pos, distances2)
         self._links[idx] = links
+        if self._link_ages is not None and ages is not None:
+            self._link_ages[idx] = ages
         n_in = links.sum(axis=2)  # live in-links per receiver, |N_t^i|
         dropout = n_in == 0  # N_t^i empty
         self.dropout[idx] = dropout
@@ -553,6 +543,8 @@ class SwarmBatch:
         link_rows = self._links[idx].astype(np.float32)
         global_map = self._map.reshape(self.n_swarms, self._pad_height, self._pad_width)[idx][self._interior]
         fresh = {"local_obs": readings, "proprio": proprio, "link_rows": link_rows, "global_map": global_map}
+        if self._link_ages is not None:
+            fresh["link_ages"] = self._link_ages[idx].astype(np.float32)
         for name, rows in fresh.items():
             if isinstance(idx, slice):  # every swarm: the new arrays replace the old ones
                 array = np.ascontiguousarray(rows)  # copies the (strided) map interior only

@@ -23,6 +23,17 @@ OBS_KEYS = ("local_obs", "proprio", "link_row", "swarm_proprio", "global_map")
 ACTOR_OBS_KEYS = ("local_obs", "proprio", "link_row")
 #: Keys that form the global state s_t (the centralized critic and the map loss only, during training).
 STATE_OBS_KEYS = ("swarm_proprio", "global_map")
+#: Opt-in key (``SwarmConfig.message_delay > 0`` only), after ``link_row``: ``link_age[j]`` = how many steps late the
+#: message of peer ``j`` that arrived at this step is (0 = on time, and 0 where ``link_row[j] = 0``: nothing arrived).
+LINK_AGE_KEY = "link_age"
+
+
+def obs_keys(config: SwarmConfig) -> tuple[str, ...]:
+    """The observation keys of ``config``'s env, in the order of its ``Dict`` space: :data:`OBS_KEYS`, plus
+    :data:`LINK_AGE_KEY` after ``link_row`` when messages can be delayed."""
+    if config.message_delay == 0:
+        return OBS_KEYS
+    return OBS_KEYS[:3] + (LINK_AGE_KEY,) + OBS_KEYS[3:]
 
 #: Length of the proprioceptive vector e_t (``proprio``; ``swarm_proprio`` is (N, 8)).
 PROPRIO_DIM = 8

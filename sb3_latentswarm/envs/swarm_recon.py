@@ -47,8 +47,10 @@ Model (units: metres, seconds of ``dt``; the arena is ``[0, X] x [0, Y]`` with `
   floor(y / cell_size))``; each reading is flipped with probability ``sensor_flip_prob``. ``M_hat`` keeps the latest
   reading of every sensed cell (two UAVs reading one cell at one step: the higher agent index wins); the coverage set
   C is the set of cells observed at least once. Sensing happens at reset and after every move.
-* Links: drawn from :class:`~sb3_latentswarm.channel.A2AChannel` at the reset positions and after every move; with
-  ``outage_model="gilbert_elliott"`` the env keeps the per-link outage state, restarted at every reset.
+* Links: drawn by the link model of the config (:func:`~sb3_latentswarm.links.make_link_model`; by default the A2A
+  channel of Eq. (1), :class:`~sb3_latentswarm.channel.A2AChannel`) at the reset positions and after every move; the
+  model keeps its state (a Gilbert-Elliott chain per link, messages in flight), restarted at every reset. With
+  ``message_delay > 0`` each agent's observation also has ``link_age`` (N,): how many steps late each arrival is.
 * Step counting: ``reset`` is t = 0, the k-th ``step`` is t = k. An episode already fully covered at reset ends
   (``terminated``) at its first step.
 
@@ -73,6 +75,7 @@ from pettingzoo import ParallelEnv
 from sb3_latentswarm.config import SwarmConfig, resolve_config
 from sb3_latentswarm.envs.batched_core import (
     ACTOR_OBS_KEYS,
+    LINK_AGE_KEY,
     OBS_KEYS,
     PROPRIO_DIM,
     STATE_OBS_KEYS,
@@ -304,6 +307,9 @@ class SwarmReconEnv(ParallelEnv):
             }
             for i, agent in enumerate(self.possible_agents)
         }
+        if core.link_ages is not None:
+            for i, agent in enumerate(self.possible_agents):
+                obs[agent][LINK_AGE_KEY] = core.link_ages[0, i]
         self._last_obs = obs
         return obs
 

@@ -52,7 +52,7 @@ from supersuit.vector.multiproc_vec import decompress_info, numpy_deepcopy
 
 from sb3_latentswarm.config import SwarmConfig, resolve_config
 from sb3_latentswarm.envs.batched_core import (
-    OBS_KEYS,
+    LINK_AGE_KEY,
     SWARM_ATTRIBUTES,
     SWARM_METHODS,
     SwarmBatch,
@@ -303,7 +303,7 @@ class BatchedSwarmVecEnv(_SwarmSeeding, VecEnv):
             finished = np.flatnonzero(done)
             for swarm in finished.tolist():
                 for k in range(swarm * n, (swarm + 1) * n):
-                    infos[k]["terminal_observation"] = {key: observations[key][k] for key in OBS_KEYS}
+                    infos[k]["terminal_observation"] = {key: value[k] for key, value in observations.items()}
                     infos[k]["TimeLimit.truncated"] = bool(truncated[swarm])
             core.reset(finished)  # their RNGs continue
             observations = self._observations()
@@ -354,13 +354,16 @@ class BatchedSwarmVecEnv(_SwarmSeeding, VecEnv):
     def _observations(self) -> dict[str, np.ndarray]:
         """The slot-major observation dict (fresh writable arrays: torch warns about read-only ones)."""
         core, n, slots = self.core, self.n_agents, self.num_envs
-        return {
+        observations = {
             "local_obs": core.local_obs.reshape(slots, -1).copy(),
             "proprio": core.proprio.reshape(slots, -1).copy(),
             "link_row": core.link_rows.reshape(slots, n).copy(),
             "swarm_proprio": np.repeat(core.proprio, n, axis=0),  # (B * N, N, 8): every agent sees its swarm's
             "global_map": np.repeat(core.global_map, n, axis=0),
         }
+        if core.link_ages is not None:
+            observations[LINK_AGE_KEY] = core.link_ages.reshape(slots, n).copy()
+        return observations
 
 
 def make_vec_env(

@@ -11,7 +11,8 @@ of plain data only (no pickle, see ``docs/security.md``):
   batched core, its pending seed), the caller's run settings (what ``train --resume`` compares) and ``extra`` (plain
   data a caller keeps with the run, e.g. a sweep trial's progress rows);
 * ``arrays.npz`` (read with ``allow_pickle=False``): the last observation, the last episode starts, the batched core's
-  state arrays (every running episode continues where it stopped);
+  state arrays and its link model's state (:meth:`~sb3_latentswarm.links.LinkModel.get_state`: the Gilbert-Elliott
+  chains, messages in flight), so every running episode continues where it stopped;
 * ``tensors.pth`` (read with ``torch.load(weights_only=True)``): the carried latent state and the torch RNG states.
 
 The state is captured at the start of a rollout, between two updates: the point where a run holds nothing else.
@@ -78,11 +79,15 @@ _NAME = re.compile(r"^checkpoint_(\d+)_steps\.zip$")
 #: Attributes of the batched core (:class:`~sb3_latentswarm.envs.batched_core.SwarmBatch`) that change while it runs;
 #: the others are constants of the config. Arrays go to ``arrays.npz``, the random streams to ``state.json``.
 _CORE_ARRAYS = (
-    "_truth", "_map", "_covered", "kinematics", "_links", "_xi_state", "footprint", "t", "n_covered", "collisions",
+    "_truth", "_map", "_covered", "kinematics", "_links", "footprint", "t", "n_covered", "collisions",
     "episode_return", "steps_to_90", "_in_link_sum", "_n_dropouts", "_n_link_draws", "_reward_terms", "dropout",
     "local_obs", "proprio", "link_rows", "global_map",
 )
-_READ_ONLY_ARRAYS = ("local_obs", "proprio", "link_rows", "global_map")
+#: Core arrays that exist only with some configs (``None`` otherwise): the message ages under delay.
+_OPTIONAL_CORE_ARRAYS = ("_link_ages", "link_ages")
+_READ_ONLY_ARRAYS = ("local_obs", "proprio", "link_rows", "global_map", "link_ages")
+#: Prefix of the link model's state arrays in ``arrays.npz`` (:meth:`~sb3_latentswarm.links.LinkModel.get_state`).
+_LINK_STATE = "link_model."
 
 
 class CheckpointError(ValueError):
@@ -154,6 +159,10 @@ def _env_state(env: VecEnv) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
         plain["pending_seed"] = inner._pending_seed
         plain["seeded"] = bool(inner._seeded)
         arrays.update({f"core.{name}": np.asarray(getattr(core, name)) for name in _CORE_ARRAYS})
+        arrays.update(
+            {f"core.{name}": getattr(core, name) for name in _OPTIONAL_CORE_ARRAYS if getattr(core, name) is not None}
+        )
+        arrays.update({f"core.{_LINK_STATE}{name}": value for name, value in core.link_model.get_state().items()})
     return plain, arrays
 
 
@@ -175,7 +184,13 @@ def _set_env_state(env: VecEnv, plain: dict[str, Any], arrays: dict[str, np.ndar
     core = inner.core
     if len(plain["swarm_rngs"]) != core.n_swarms:
         raise CheckpointError(f"the checkpoint's env has {len(plain['swarm_rngs'])} swarms, this env {core.n_swarms}")
-    for name in _CORE_ARRAYS:
+    optional = [name for name in _OPTIONAL_CORE_ARRAYS if getattr(core, name) is not None]
+    if any(f"core.{name}" not in arrays for name in optional):
+        raise CheckpointError(
+            f"the checkpoint's env has no {optional}: the env config differs from the checkpoint's (message delay)"
+        )
+    _set_link_state(core.link_model, arrays)
+    for name in (*_CORE_ARRAYS, *optional):
         saved, current = arrays[f"core.{name}"], getattr(core, name)
         if saved.shape != current.shape or saved.dtype != current.dtype:
             raise CheckpointError(
@@ -194,6 +209,21 @@ def _set_env_state(env: VecEnv, plain: dict[str, Any], arrays: dict[str, np.ndar
     inner._pending_seed = plain["pending_seed"]
     inner._seeded = plain["seeded"]
     return True
+
+
+def _set_link_state(link_model: Any, arrays: dict[str, np.ndarray]) -> None:
+    """Restore the link model's state from the core arrays of a checkpoint (``core.link_model.<name>``).
+
+    Checkpoints written before the link models existed keep the Gilbert-Elliott chains as ``core._xi_state``.
+    """
+    prefix = f"core.{_LINK_STATE}"
+    state = {name[len(prefix) :]: value for name, value in arrays.items() if name.startswith(prefix)}
+    if not state and "core._xi_state" in arrays and "xi_state" in link_model.get_state():
+        state = {"xi_state": arrays["core._xi_state"]}
+    try:
+        link_model.set_state(state)
+    except ValueError as error:
+        raise CheckpointError(f"{error}: the env config differs from the checkpoint's") from None
 
 
 def checkpoint_bytes(model: Any, settings: dict[str, Any] | None = None, extra: dict[str, Any] | None = None) -> bytes:

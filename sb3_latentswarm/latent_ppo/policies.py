@@ -1,17 +1,11 @@
 """``LatentSwarmPolicy``: the map / task / memory latent state of Sec. III, as an SB3 policy.
 
-Per UAV i at step t, in the paper's order (all agents of all swarms at once, grouped by swarm with reshapes):
+The latent updates of Sec. III-A/B/C (message pooling, memory, predictor or substitute, the asymmetric map update, the
+task update) are written once, in :mod:`sb3_latentswarm.latent_ppo.recurrence`; this module adds the heads:
 
-* message of UAV j: z_{t-1}^j = [mu_{t-1}^j ; tau_{t-1}^j]; aggregate over live in-links (Sec. III-B):
-  m_t^i = mean_{j in N_t^i} z_{t-1}^j, split into m^mu and m^tau
-* memory (Sec. III-A): rho_t = G_psi(rho_{t-1}, tau_{t-1}, o_{t-1}, mbar_{t-1})
-* predictor (Sec. III-C): mhat_t = P_zeta(rho_t, o_t, e_t); best available message mbar_t = m_t if N_t^i is not
-  empty, else mhat_t
-* map (Sec. III-A): mu_t = E_phi(mu_{t-1}, o_t, p_t, m_t^mu) with m_t^mu = 0 when nothing arrived (the asymmetric
-  update: the map state never sees a predicted message); decoder D_eta(mu_t) reconstructs M_hat_t
-* task (Sec. III-A): tau_t = F_theta(tau_{t-1}, o_t, e_t, mu_{t-1}, mbar_t)
 * actor (Sec. III-D): Gaussian pi_xi(a | tau_t) with mean and diagonal std from tau_t (``action_distribution``:
   the paper's Gaussian, or opt-in its tanh-squashed version whose actions stay in the [-1, 1] box)
+* map decoder D_eta(mu_t), the reconstruction M_hat_t (Sec. III-A)
 * critic (Sec. III-D): V_omega(s_t), s_t = ({e_t^j}, M_hat_t) read from the global part of the observation
 
 The actor side reads only ``local_obs``, ``proprio`` and ``link_row``; the critic only ``swarm_proprio`` and
@@ -21,20 +15,16 @@ The actor side reads only ``local_obs``, ``proprio`` and ``link_row``; the criti
 from __future__ import annotations
 
 import contextlib
-import inspect
-import math
 from collections.abc import Callable
 from typing import Any, NamedTuple, cast
 
 import numpy as np
 import torch as th
-import torch.nn.functional as F
 from gymnasium import spaces
-from stable_baselines3.common.distributions import DiagGaussianDistribution, SquashedDiagGaussianDistribution, TanhBijector
+from stable_baselines3.common.distributions import DiagGaussianDistribution, SquashedDiagGaussianDistribution
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
-from torch.distributions import Normal
 
 from sb3_latentswarm.envs.observations import (
     ACTOR_OBS_KEYS,
@@ -43,15 +33,36 @@ from sb3_latentswarm.envs.observations import (
     STATE_OBS_KEYS,
     as_vec_observation,
 )
+from sb3_latentswarm.latent_ppo.distributions import (  # noqa: F401  (smooth_log_std & co: also importable from here)
+    TanhSquashedGaussianDistribution,
+    UnvalidatedDiagGaussianDistribution,
+    inverse_smooth_log_std,
+    smooth_log_std,
+    unvalidated_normal,
+)
+from sb3_latentswarm.latent_ppo.policy_checks import (  # noqa: F401  (REQUIRED_KEYS, check_observation_space: public here)
+    REQUIRED_KEYS,
+    check_log_std_bounds,
+    check_observation_space,
+    space_shape,
+    unexpected_kwargs_message,
+)
+from sb3_latentswarm.latent_ppo.recurrence import (  # noqa: F401  (SequenceLinear, gru_cell: also importable from here)
+    AgentInputs,
+    SequenceLinear,
+    StepInputs,
+    StepOutput,
+    agent_update,
+    gru_cell,
+    replay_sequence,
+    swarm_step,
+)
 from sb3_latentswarm.latent_ppo.type_aliases import LatentState
 from sb3_latentswarm.latent_ppo.value_norm import ValueNorm
 from sb3_latentswarm.utils.checks import check_choice, check_float, check_int
 from sb3_latentswarm.utils.threads import apply_default_torch_threads_once
 
 apply_default_torch_threads_once()  # the package's torch thread default (utils/threads.py), once per process
-
-REQUIRED_KEYS = ACTOR_OBS_KEYS + STATE_OBS_KEYS
-"""The first three entries of the proprioceptive state e_t are the (normalized) position p_t."""
 
 ACTION_DISTRIBUTIONS = ("gaussian", "squashed_gaussian")
 """Values of ``action_distribution``: the paper's diagonal Gaussian, or the same Gaussian followed by tanh."""
@@ -75,91 +86,6 @@ def with_legacy_defaults(policy_kwargs: dict[str, Any] | None) -> dict[str, Any]
     return {**LEGACY_POLICY_KWARGS, **(policy_kwargs or {})}
 
 
-def smooth_log_std(raw: th.Tensor, low: float, high: float) -> th.Tensor:
-    """log std = low + (high - low) * (tanh(raw) + 1) / 2, CleanRL's SAC bound: smooth, non-zero slope everywhere.
-
-    Computed as ``high - (high - low) * sigmoid(-2 raw)`` for raw >= 0 and ``low + (high - low) * sigmoid(2 raw)``
-    below (the same function, since (tanh(x) + 1) / 2 = sigmoid(2x)): ``tanh(raw)`` rounds to exactly +-1 in float32
-    once abs(raw) > 9, and its gradient with it, while these forms keep a non-zero gradient up to abs(raw) of about 40
-    (where it reaches float32's smallest normal number).
-
-    :param raw: the std head's output, any shape
-    :return: the log std, same shape, strictly inside (low, high) for abs(raw) < 9
-    """
-    span = high - low
-    return th.where(raw >= 0, high - span * th.sigmoid(-2.0 * raw), low + span * th.sigmoid(2.0 * raw))
-
-
-def inverse_smooth_log_std(log_std: float, low: float, high: float) -> float:
-    """The raw output that :func:`smooth_log_std` maps to ``log_std`` (which must lie strictly inside (low, high))."""
-    return math.atanh(2.0 * (log_std - low) / (high - low) - 1.0)
-
-
-def unvalidated_normal(mean_actions: th.Tensor, log_std: th.Tensor) -> Normal:
-    """SB3's diagonal Gaussian N(mean, exp(log_std)^2), built without ``torch.distributions``' argument validation.
-
-    Validation reads ``bool()`` of tensors (a host sync per check, several per minibatch); the arguments here are
-    finite by construction (a linear head and a bounded log std). Per distribution rather than
-    ``Distribution.set_default_validate_args(False)``, which would switch it off for the user's code too.
-    """
-    action_std = th.ones_like(mean_actions) * log_std.exp()
-    return Normal(mean_actions, action_std, validate_args=False)
-
-
-class UnvalidatedDiagGaussianDistribution(DiagGaussianDistribution):
-    """SB3's :class:`~stable_baselines3.common.distributions.DiagGaussianDistribution` without argument validation
-    (:func:`unvalidated_normal`): the same numbers, no host syncs."""
-
-    def proba_distribution(self, mean_actions: th.Tensor, log_std: th.Tensor) -> UnvalidatedDiagGaussianDistribution:
-        self.distribution = unvalidated_normal(mean_actions, log_std)
-        return self
-
-
-class TanhSquashedGaussianDistribution(SquashedDiagGaussianDistribution):
-    """SB3's :class:`~stable_baselines3.common.distributions.SquashedDiagGaussianDistribution` (a = tanh(u),
-    u ~ N(mean, std^2)) with the exact change of variables in :meth:`log_prob`.
-
-    SB3 subtracts ``log(1 - a^2 + 1e-6)``: the 1e-6 shifts the log-probability of a saturated action by up to 1.6
-    nats per dimension, and it flattens the sampled entropy estimate once abs(u) passes about 7, so that estimate stops
-    pulling the actor back from saturation. Here log(da/du) = log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u)),
-    exact and finite for every u. ``entropy()`` stays ``None`` (no closed form): see
-    :meth:`LatentSwarmPolicy.action_entropy`. Built without argument validation (:func:`unvalidated_normal`).
-    """
-
-    def proba_distribution(self, mean_actions: th.Tensor, log_std: th.Tensor) -> TanhSquashedGaussianDistribution:
-        self.distribution = unvalidated_normal(mean_actions, log_std)
-        return self
-
-    def log_prob(self, actions: th.Tensor, gaussian_actions: th.Tensor | None = None) -> th.Tensor:
-        """log pi(a) = log N(u; mean, std^2) - sum_k log(1 - tanh(u_k)^2), (B,).
-
-        :param actions: squashed actions a in [-1, 1], (B, action_dim)
-        :param gaussian_actions: u with a = tanh(u), when known; otherwise u = atanh(a), with a clipped to
-            [-1 + eps, 1 - eps] (float eps) as SB3 does, so that a saturated a = +-1 has a finite log-probability
-        """
-        if gaussian_actions is None:
-            gaussian_actions = TanhBijector.inverse(actions)
-        log_prob = DiagGaussianDistribution.log_prob(self, gaussian_actions)
-        log_det = 2.0 * (math.log(2.0) - gaussian_actions - F.softplus(-2.0 * gaussian_actions))
-        return log_prob - log_det.sum(dim=-1)
-
-
-class StepOutput(NamedTuple):
-    """Everything one latent step produces for a batch of agents (leading dim: slots)."""
-
-    state: LatentState
-    """The new state, to carry into the next step."""
-    received_message: th.Tensor
-    """m_t, the mean of live in-link messages (zeros when none arrived), (B, d_mu + d_tau)."""
-    predicted_message: th.Tensor
-    """mhat_t = P(rho_t, o_t, e_t), evaluated at every step, (B, d_mu + d_tau)."""
-    has_message: th.Tensor
-    """Whether N_t^i is not empty, (B,) bool."""
-    sent_message: th.Tensor
-    """z_{t-1}^i = [mu_{t-1}^i; tau_{t-1}^i], the message this agent broadcast for step t (zero at an episode start),
-    (B, d_mu + d_tau)."""
-
-
 MESSAGE_SUBSTITUTES = ("predicted", "zero", "hold_last", "own_message")
 """What replaces the aggregated message m_t at a step with no live in-link (dropout), ``mbar_t = m_t if N_t^i != {}``
 else the substitute:
@@ -171,140 +97,6 @@ else the substitute:
 ``own_message``  the agent's own message z_{t-1}^i (extension)
 ===============  ===========================================================================================
 """
-
-
-class StepInputs(NamedTuple):
-    """What a latent step reads from the observation, before the recurrence (:meth:`LatentSwarmPolicy.step_inputs`).
-
-    Leading dims ``(...)``: ``(B,)`` for one step, ``(T, B)`` for a training sequence (then indexed per step)."""
-
-    keep: th.Tensor
-    """1 - episode_start, (..., B, 1): the carried state is zeroed where an episode starts."""
-    local_obs: th.Tensor
-    """o_t, flattened, float32, (..., B, o_dim)."""
-    proprio: th.Tensor
-    """e_t, float32, (..., B, e_dim)."""
-    position: th.Tensor
-    """p_t, the first entries of e_t, (..., B, 3)."""
-    link_mask: th.Tensor
-    """[..., s, i, j] = 1 iff the link j -> i of swarm s delivered at t, (..., n_swarms, N, N)."""
-    in_degree: th.Tensor
-    """The in-degree ``max(len(N_t^i), 1)``, at least 1 (the divisor of the message mean), (..., n_swarms, N, 1)."""
-    has_message: th.Tensor
-    """Whether N_t^i is not empty, (..., B) bool."""
-
-
-def gru_cell(inputs: th.Tensor, hidden: th.Tensor, cell: nn.GRUCell) -> th.Tensor:
-    """``torch.nn.GRUCell``'s equations with its parameters, its two GEMMs written as ``F.linear`` so that autocast runs
-    them in bfloat16 (``GRUCell``'s own op is not autocast on CPU); the gates are computed in float32:
-
-    r = sigmoid(W_ir x + b_ir + W_hr h + b_hr), z = sigmoid(W_iz x + b_iz + W_hz h + b_hz),
-    n = tanh(W_in x + b_in + r * (W_hn h + b_hn)), h' = (1 - z) * n + z * h = (h - n) * z + n.
-
-    :param inputs: x, (B, input_size)
-    :param hidden: h, (B, hidden_size), float32
-    :param cell: the ``GRUCell`` whose ``weight_ih``, ``bias_ih``, ``weight_hh``, ``bias_hh`` are used
-    :return: h', (B, hidden_size), float32 (the dtype of ``hidden``)
-    """
-    return gru_update(F.linear(inputs, cell.weight_ih, cell.bias_ih), F.linear(hidden, cell.weight_hh, cell.bias_hh), hidden)
-
-
-def gru_update(input_gates: th.Tensor, hidden_gates: th.Tensor, hidden: th.Tensor) -> th.Tensor:
-    """The gates and new state of ``torch.nn.GRUCell`` from its two projections (:func:`gru_cell`), in float32.
-
-    :param input_gates: W_ih x + b_ih, (B, 3 hidden_size), gates in the order r, z, n (float32 or bfloat16)
-    :param hidden_gates: W_hh h + b_hh, (B, 3 hidden_size)
-    :param hidden: h, (B, hidden_size), float32
-    :return: h', (B, hidden_size), float32
-    """
-    input_r, input_z, input_n = input_gates.float().chunk(3, dim=-1)
-    hidden_r, hidden_z, hidden_n = hidden_gates.float().chunk(3, dim=-1)
-    reset = th.sigmoid(input_r + hidden_r)
-    update = th.sigmoid(input_z + hidden_z)
-    new = th.tanh(input_n + reset * hidden_n)
-    return (hidden - new) * update + new
-
-
-class SequenceLinear:
-    """y_t = x_t W^T + b (+ c_t) applied at every step t of a recurrence, with the weight gradient computed once per
-    sequence: sum_t g_t^T x_t as one GEMM over all T * B rows after the backward pass through time, as cuDNN's RNNs do,
-    instead of one small GEMM and one accumulation of a full-size gradient per step. The input gradients g_t W stay per
-    step (they are the recurrence). Under autocast the weight and bias are cast once to the autocast dtype (the GEMMs
-    then run in it; the summed weight gradient is rounded once to it, not per step).
-
-    Without gradients (``torch.no_grad`` or a weight that does not require them) it is the plain GEMM. A backward pass
-    must reach the weight (``loss.backward()``, or ``torch.autograd.grad`` with respect to the parameters); one that
-    asks only for other tensors' gradients would leave its per-step pairs behind for the next pass of a retained graph.
-
-    :param weight: W, (N, K), a parameter or a differentiable view of one (a slice of a GRU's W_ih)
-    :param bias: b, (N,), or None
-    :param dtype: the GEMMs' dtype (the autocast dtype, or the weight's)
-    :param deferred: sum the weight gradient once per sequence; ``False``: autograd's per-step weight gradients
-    """
-
-    def __init__(self, weight: th.Tensor, bias: th.Tensor | None, dtype: th.dtype, deferred: bool = True):
-        self.dtype = dtype
-        self.pairs: list[tuple[th.Tensor, th.Tensor]] = []  # (g_t, x_t), filled by the backward pass
-        requires_grad = weight.requires_grad or (bias is not None and bias.requires_grad)
-        self.tracked = deferred and th.is_grad_enabled() and requires_grad
-        # cast once (differentiably when not tracked: autograd then sums the per-step weight gradients itself)
-        self.weight = (weight.detach() if self.tracked else weight).to(dtype)
-        self.bias = None if bias is None else (bias.detach() if self.tracked else bias).to(dtype)
-        # a scalar whose backward node runs after every step's (it feeds all of them): the weight gradient is summed there
-        self.token = _SequenceWeightGradient.apply(self, weight, bias) if self.tracked else None
-
-    def __call__(self, inputs: th.Tensor, added: th.Tensor | None = None) -> th.Tensor:
-        """x_t W^T + b + c_t for one step: ``inputs`` x_t (B, K), ``added`` c_t (B, N) or None; (B, N) in ``dtype``."""
-        if not self.tracked:
-            return _affine(inputs.to(self.dtype), self.weight, self.bias, added)
-        return _SequenceLinearStep.apply(inputs, added, self.token, self)
-
-
-def _affine(inputs: th.Tensor, weight: th.Tensor, bias: th.Tensor | None, added: th.Tensor | None) -> th.Tensor:
-    if added is not None:
-        return th.addmm(added.to(inputs.dtype) if bias is None else added.to(inputs.dtype) + bias, inputs, weight.t())
-    return th.mm(inputs, weight.t()) if bias is None else th.addmm(bias, inputs, weight.t())
-
-
-class _SequenceLinearStep(th.autograd.Function):
-    @staticmethod
-    def forward(ctx: Any, inputs: th.Tensor, added: th.Tensor | None, token: th.Tensor, linear: SequenceLinear) -> th.Tensor:
-        cast = inputs.to(linear.dtype)
-        ctx.save_for_backward(cast)
-        ctx.linear, ctx.input_dtype = linear, inputs.dtype
-        ctx.added_dtype = None if added is None else added.dtype
-        return _affine(cast, linear.weight, linear.bias, added)
-
-    @staticmethod
-    def backward(ctx: Any, grad: th.Tensor) -> tuple[th.Tensor | None, ...]:
-        (cast,) = ctx.saved_tensors
-        linear: SequenceLinear = ctx.linear
-        grad = grad.to(linear.dtype)
-        linear.pairs.append((grad, cast))
-        grad_inputs = th.mm(grad, linear.weight).to(ctx.input_dtype) if ctx.needs_input_grad[0] else None
-        grad_added = grad.to(ctx.added_dtype) if ctx.added_dtype is not None and ctx.needs_input_grad[1] else None
-        return grad_inputs, grad_added, th.zeros((), dtype=th.float32, device=grad.device), None
-
-
-class _SequenceWeightGradient(th.autograd.Function):
-    @staticmethod
-    def forward(ctx: Any, linear: SequenceLinear, weight: th.Tensor, bias: th.Tensor | None) -> th.Tensor:
-        ctx.linear = linear
-        ctx.weight_dtype = weight.dtype
-        ctx.has_bias = bias is not None
-        return th.zeros((), dtype=th.float32, device=weight.device)
-
-    @staticmethod
-    def backward(ctx: Any, _: th.Tensor) -> tuple[th.Tensor | None, ...]:
-        linear: SequenceLinear = ctx.linear
-        if not linear.pairs:
-            return None, None, None
-        grads = th.cat([g for g, _ in linear.pairs])  # (T * B, N), steps in any order, rows matched with the inputs
-        inputs = th.cat([x for _, x in linear.pairs])  # (T * B, K)
-        linear.pairs = []  # (a retained graph's next backward pass fills them again)
-        grad_weight = th.mm(grads.t(), inputs).to(ctx.weight_dtype) if ctx.needs_input_grad[1] else None
-        grad_bias = grads.sum(0, dtype=th.float32).to(ctx.weight_dtype) if ctx.has_bias and ctx.needs_input_grad[2] else None
-        return None, grad_weight, grad_bias
 
 
 class SequenceEvaluation(NamedTuple):
@@ -411,7 +203,7 @@ class LatentSwarmPolicy(BasePolicy):
             # RecurrentPPO passes use_sde; anything else is a typo the user should hear about
             unexpected = set(unused_kwargs) - {"use_sde"}
             if unexpected:
-                raise TypeError(_unexpected_kwargs_message(unexpected))
+                raise TypeError(unexpected_kwargs_message(unexpected, LatentSwarmPolicy.__init__))
             if unused_kwargs.get("use_sde"):
                 raise ValueError("LatentSwarmPolicy does not support use_sde=True")
         check_observation_space(observation_space)
@@ -450,7 +242,7 @@ class LatentSwarmPolicy(BasePolicy):
         self.critic_hidden = critic_hidden
         self.actor_hidden = actor_hidden
         self.log_std_init = log_std_init
-        self.log_std_bounds = _check_log_std_bounds(log_std_bounds)
+        self.log_std_bounds = check_log_std_bounds(log_std_bounds)
         self.log_std_mapping = log_std_mapping
         self.action_distribution_name = action_distribution
         low, high = self.log_std_bounds
@@ -473,9 +265,9 @@ class LatentSwarmPolicy(BasePolicy):
             self.message_substitute = "zero"
         self.no_memory = no_memory
 
-        self.local_obs_dim = int(np.prod(_space_shape(observation_space["local_obs"])))
-        self.proprio_dim = int(_space_shape(observation_space["proprio"])[-1])
-        self.map_shape = tuple(_space_shape(observation_space["global_map"]))
+        self.local_obs_dim = int(np.prod(space_shape(observation_space["local_obs"])))
+        self.proprio_dim = int(space_shape(observation_space["proprio"])[-1])
+        self.map_shape = tuple(space_shape(observation_space["global_map"]))
         self.n_cells = int(np.prod(self.map_shape))
         self.action_dim = int(np.prod(action_space.shape))
         o_dim, e_dim, d_mu, d_tau, d_rho, d_msg = (
@@ -606,7 +398,6 @@ class LatentSwarmPolicy(BasePolicy):
             raise ValueError(f"The batch of {batch} slots is not a whole number of swarms of {n_agents} agents")
         # [..., s, i, j] = 1 iff j -> i delivered at t
         link_mask = link_row.view(*link_row.shape[:-2], batch // n_agents, n_agents, n_agents)
-        in_degree = link_mask.sum(-1, keepdim=True)  # |N_t^i|, (..., n_swarms, N, 1)
         proprio = obs["proprio"].float()  # (..., B, e_dim)
         return StepInputs(
             keep=(1.0 - episode_starts.float()).unsqueeze(-1),
@@ -614,8 +405,7 @@ class LatentSwarmPolicy(BasePolicy):
             proprio=proprio,
             position=proprio[..., PROPRIO_POSITION],
             link_mask=link_mask,
-            in_degree=in_degree.clamp(min=1.0),
-            has_message=(in_degree > 0).view(link_row.shape[:-1]),
+            has_message=(link_row.sum(-1) > 0),
         )
 
     def recurrent_step(self, inputs: StepInputs, state: LatentState) -> StepOutput:
@@ -626,10 +416,18 @@ class LatentSwarmPolicy(BasePolicy):
         :param state: the state carried in from step t-1, (B, ...) per field
         """
         step = self._eager_recurrent_step if self._compiled_latent_step is None else self._compiled_latent_step
+        return self._in_latent_precision(step, inputs, state)
+
+    def agent_step(self, inputs: AgentInputs, state: LatentState) -> StepOutput:
+        """:func:`~sb3_latentswarm.latent_ppo.recurrence.agent_update` for any batch of agents whose received messages
+        are already pooled (one UAV: B = 1), under the policy's :attr:`autocast`; outputs in float32."""
+        return self._in_latent_precision(agent_update, self, inputs, state)
+
+    def _in_latent_precision(self, step: Callable[..., StepOutput], *args: Any) -> StepOutput:
         if self.autocast is None:
-            return step(inputs, state)
+            return step(*args)
         with self.latent_autocast():
-            out = step(inputs, state)
+            out = step(*args)
         return StepOutput(
             LatentState(*(field.float() for field in out.state)),
             out.received_message.float(),
@@ -668,52 +466,8 @@ class LatentSwarmPolicy(BasePolicy):
             return contextlib.nullcontext()
         return th.autocast(self.device.type, dtype=th.bfloat16)
 
-    def _gru(self, cell: nn.GRUCell, inputs: th.Tensor, hidden: th.Tensor) -> th.Tensor:
-        # GRUCell's own kernel is not autocast on CPU: under autocast its equations go through gru_cell's F.linear
-        return cell(inputs, hidden) if self.autocast is None else gru_cell(inputs, hidden, cell)
-
     def _eager_recurrent_step(self, inputs: StepInputs, state: LatentState) -> StepOutput:
-        map_prev, task_prev, memory_prev, local_prev, message_prev, held_prev = (field * inputs.keep for field in state)
-        local_obs, proprio, has_message = inputs.local_obs, inputs.proprio, inputs.has_message  # (B, o_dim), (B, e_dim), (B,)
-        n_swarms, n_agents = inputs.link_mask.shape[:2]
-        batch = n_swarms * n_agents
-
-        # Sec. III-B: z_{t-1}^j = [mu_{t-1}^j; tau_{t-1}^j],  m_t^i = mean_{j in N_t^i} z_{t-1}^j
-        sent_message = th.cat([map_prev, task_prev], dim=-1)  # z_{t-1}^i, (B, d_msg)
-        messages = sent_message.view(n_swarms, n_agents, self.message_dim)
-        received_message = (th.bmm(inputs.link_mask, messages) / inputs.in_degree).view(batch, self.message_dim)
-
-        # Sec. III-A: rho_t = G_psi(rho_{t-1}, tau_{t-1}, o_{t-1}, mbar_{t-1})   (no_memory: rho zeroed before use)
-        if self.no_memory:
-            memory_prev = th.zeros_like(memory_prev)
-        memory_state = self._gru(self.memory_encoder, th.cat([task_prev, local_prev, message_prev], dim=-1), memory_prev)
-        memory_used = th.zeros_like(memory_state) if self.no_memory else memory_state
-
-        # Sec. III-C: mhat_t = P_zeta(rho_t, o_t, e_t);  mbar_t = m_t if N_t^i != {} else mhat_t
-        predicted_message = self.message_predictor(th.cat([memory_used, local_obs, proprio], dim=-1))
-        # (extensions: hold_last / own_message / zero replace mhat_t; see MESSAGE_SUBSTITUTES)
-        received_now = has_message.unsqueeze(-1)
-        held_message = th.where(received_now, received_message, held_prev)
-        if self.message_substitute == "predicted":
-            substitute = predicted_message
-        elif self.message_substitute == "zero":
-            substitute = th.zeros_like(predicted_message)
-        elif self.message_substitute == "hold_last":
-            substitute = held_prev
-        else:  # own_message
-            substitute = sent_message
-        best_message = th.where(received_now, received_message, substitute)
-
-        # Sec. III-A, asymmetric update: mu_t = E_phi(mu_{t-1}, o_t, p_t, m^mu_t), m^mu_t = 0 when nothing arrived
-        # (received_message is already zero there, so the predictor never reaches the map state)
-        map_message = received_message[:, : self.map_dim]
-        map_state = self._gru(self.map_encoder, th.cat([local_obs, inputs.position, map_message], dim=-1), map_prev)
-
-        # Sec. III-A: tau_t = F_theta(tau_{t-1}, o_t, e_t, mu_{t-1}, mbar_t)
-        task_state = self._gru(self.task_encoder, th.cat([local_obs, proprio, map_prev, best_message], dim=-1), task_prev)
-
-        new_state = LatentState(map_state, task_state, memory_state, local_obs, best_message, held_message)
-        return StepOutput(new_state, received_message, predicted_message, has_message, sent_message)
+        return swarm_step(self, inputs, state)
 
     # ------------------------------------------------------------------ heads
     def bound_log_std(self, raw: th.Tensor) -> th.Tensor:
@@ -749,7 +503,8 @@ class LatentSwarmPolicy(BasePolicy):
         gaussian = self.action_distribution(task_state).distribution
         actions = gaussian.mean
         if noise is not None:
-            actions = actions + gaussian.stddev * th.as_tensor(noise, device=actions.device)
+            eps = noise if isinstance(noise, th.Tensor) else th.as_tensor(noise, device=actions.device)  # (traceable)
+            actions = actions + gaussian.stddev * eps
         return th.tanh(actions) if self.squash_output else actions
 
     @staticmethod
@@ -890,111 +645,20 @@ class LatentSwarmPolicy(BasePolicy):
 
         :return: tau_t, mu_t, m_t, mhat_t (T, B, dim each), has_message (T, B)
         """
-        outputs: list[list[th.Tensor]] = [[], [], [], [], []]
-        for t in range(inputs.keep.shape[0]):
-            step = self.recurrent_step(StepInputs._make(field[t] for field in inputs), state)
-            state = step.state
-            for output, value in zip(outputs, (state.task_state, state.map_state, step.received_message,
-                                               step.predicted_message, step.has_message)):
-                output.append(value)
-        return tuple(th.stack(output) for output in outputs)
+        return replay_sequence(self, inputs, state, "eager")
 
     def _replay_latent_sequence(self, inputs: StepInputs, state: LatentState) -> tuple[th.Tensor, ...]:
-        """The latent updates of a training sequence with the recurrence-free arithmetic batched over the chunk.
-
-        The same equations as :meth:`recurrent_step` (``nn.GRUCell``'s r, z, n gates with b_ih and b_hh), arranged for
-        time-major sequences: each GRU's input projection W_ih x is split by input columns into the part that reads the
-        observations (o_t, e_t, p_t and the previous step's o_{t-1}), computed as one GEMM over all T * B rows before
-        the loop, and the part that reads the recurrent state (messages, mu_{t-1}, tau_{t-1}, mbar_{t-1}), computed
-        per step; likewise the first layer of the predictor P_zeta. When the substitute is not the predictor, mhat_t
-        does not feed the recurrence and is computed after the loop for all rows at once. The sums of the split
-        projections round differently from the rollout's one GEMM: float32 results agree with
-        :meth:`_replay_latent_steps` to about 1e-6.
+        """The same updates (:func:`~sb3_latentswarm.latent_ppo.recurrence.agent_update`, written once) with the GEMMs
+        arranged for the whole sequence (:class:`~sb3_latentswarm.latent_ppo.recurrence.SequenceLinears`): the
+        observation columns of each input projection in one GEMM over all T * B rows, the weight gradients of the
+        recurrent columns summed once per sequence. float32 results agree with :meth:`_replay_latent_steps` to about
+        1e-6.
 
         :param inputs: :meth:`step_inputs` of the sequence, leading dims (T, B)
         :param state: the state carried into the first step, (B, ...) per field
         :return: tau_t, mu_t, m_t, mhat_t (T, B, dim each), has_message (T, B)
         """
-        o_dim, e_dim, d_mu, d_tau, d_rho = self.local_obs_dim, self.proprio_dim, self.map_dim, self.task_dim, self.memory_dim
-        n_steps, (n_swarms, n_agents) = inputs.keep.shape[0], inputs.link_mask.shape[1:3]
-        batch = n_swarms * n_agents
-        local_obs, proprio, keep = inputs.local_obs, inputs.proprio, inputs.keep  # (T, B, o_dim), (T, B, e_dim), (T, B, 1)
-        map_cell, task_cell, memory_cell = self.map_encoder, self.task_encoder, self.memory_encoder
-        predictor_in, predictor_out = cast(nn.Linear, self.message_predictor[0]), cast(nn.Linear, self.message_predictor[2])
-        use_predictor = self.message_substitute == "predicted"
-
-        # recurrence-free input projections, one GEMM each over T * B rows: the input columns of each W_ih (and of
-        # P_zeta's first layer) that read o_t, p_t, e_t, o_{t-1}; the bias b_ih rides on them. Split into per-step views
-        # by unbind, whose backward stacks the T gradients once (indexing [t] would zero-fill a (T, B, .) gradient per step)
-        observed = th.cat([local_obs, proprio], dim=-1)  # (T, B, o_dim + e_dim)
-        map_x = F.linear(th.cat([local_obs, inputs.position], dim=-1), map_cell.weight_ih[:, : o_dim + POSITION_DIMS],
-                         map_cell.bias_ih).unbind(0)  # T x (B, 3 d_mu)
-        task_x = F.linear(observed, task_cell.weight_ih[:, : o_dim + e_dim], task_cell.bias_ih).unbind(0)  # T x (B, 3 d_tau)
-        # o_{t-1}: the stored one before the first step, zeroed at episode starts as the carried state is
-        local_prev = th.cat([state.prev_local_obs.unsqueeze(0), local_obs[:-1]]) * keep
-        memory_x = F.linear(local_prev, memory_cell.weight_ih[:, d_tau : d_tau + o_dim], memory_cell.bias_ih).unbind(0)
-        if use_predictor:
-            predictor_x = F.linear(observed, predictor_in.weight[:, d_rho:], predictor_in.bias).unbind(0)  # T x (B, hidden)
-        # the GEMMs inside the recurrence: the columns of W_ih that read the recurrent state, and W_hh; each weight is
-        # cast once to the autocast dtype and its gradient summed once over the sequence (SequenceLinear)
-        dtype = th.get_autocast_dtype(self.device.type) if self.autocast is not None else map_cell.weight_ih.dtype
-        map_in = SequenceLinear(map_cell.weight_ih[:, o_dim + POSITION_DIMS :], None, dtype)  # reads m^mu_t
-        task_in = SequenceLinear(task_cell.weight_ih[:, o_dim + e_dim :], None, dtype)  # reads [mu_{t-1}; mbar_t]
-        memory_columns = th.cat([memory_cell.weight_ih[:, :d_tau], memory_cell.weight_ih[:, d_tau + o_dim :]], dim=1)
-        memory_in = SequenceLinear(memory_columns, None, dtype)  # reads [tau_{t-1}; mbar_{t-1}]
-        map_hidden, task_hidden, memory_hidden = (SequenceLinear(cell.weight_hh, cell.bias_hh, dtype)
-                                                  for cell in (map_cell, task_cell, memory_cell))
-        if use_predictor:
-            predictor_memory = SequenceLinear(predictor_in.weight[:, :d_rho], None, dtype)  # reads rho_t
-            predictor_output = SequenceLinear(predictor_out.weight, predictor_out.bias, dtype)
-
-        map_state, task_state, memory_state, message, held = state.map_state, state.task_state, state.memory_state, \
-            state.prev_message, state.held_message
-        outputs: list[list[th.Tensor]] = [[], [], [], [], []]
-        for t in range(n_steps):
-            keep_t = keep[t]
-            map_prev, task_prev, memory_prev, message_prev, held_prev = (
-                field * keep_t for field in (map_state, task_state, memory_state, message, held)
-            )
-            # Sec. III-B: z_{t-1}^j = [mu_{t-1}^j; tau_{t-1}^j],  m_t^i = mean_{j in N_t^i} z_{t-1}^j
-            sent_message = th.cat([map_prev, task_prev], dim=-1)  # (B, d_msg)
-            messages = sent_message.view(n_swarms, n_agents, self.message_dim)
-            received_message = (th.bmm(inputs.link_mask[t], messages) / inputs.in_degree[t]).view(batch, self.message_dim)
-            # Sec. III-A: rho_t = G_psi(rho_{t-1}, tau_{t-1}, o_{t-1}, mbar_{t-1})   (no_memory: rho zeroed before use)
-            if self.no_memory:
-                memory_prev = th.zeros_like(memory_prev)
-            memory_gates = memory_in(th.cat([task_prev, message_prev], dim=-1), memory_x[t])
-            memory_state = gru_update(memory_gates, memory_hidden(memory_prev), memory_prev)
-            # Sec. III-C: mhat_t = P_zeta(rho_t, o_t, e_t);  mbar_t = m_t if N_t^i != {} else the substitute
-            received_now = inputs.has_message[t].unsqueeze(-1)
-            if use_predictor:
-                hidden = predictor_x[t] if self.no_memory else predictor_memory(memory_state, predictor_x[t])
-                substitute = predictor_output(th.tanh(hidden))
-                outputs[3].append(substitute)
-            else:
-                outputs[3].append(memory_state)
-                if self.message_substitute == "zero":
-                    substitute = th.zeros_like(received_message)
-                elif self.message_substitute == "hold_last":
-                    substitute = held_prev
-                else:  # own_message
-                    substitute = sent_message
-            held = th.where(received_now, received_message, held_prev).float()
-            message = th.where(received_now, received_message, substitute).float()
-            # Sec. III-A, asymmetric update: mu_t = E_phi(mu_{t-1}, o_t, p_t, m^mu_t), m^mu_t = 0 when nothing arrived
-            map_state = gru_update(map_in(received_message[:, :d_mu], map_x[t]), map_hidden(map_prev), map_prev)
-            # Sec. III-A: tau_t = F_theta(tau_{t-1}, o_t, e_t, mu_{t-1}, mbar_t)
-            task_gates = task_in(th.cat([map_prev, message], dim=-1), task_x[t])
-            task_state = gru_update(task_gates, task_hidden(task_prev), task_prev)
-            for output, value in zip(outputs, (task_state, map_state, received_message)):
-                output.append(value)
-            outputs[4].append(inputs.has_message[t])
-        task_states, map_states, received, predicted, has_message = (th.stack(output) for output in outputs)
-        if not use_predictor:  # mhat_t did not feed the recurrence: all T * B rows at once (rho_t zeroed under no_memory)
-            memory_used = th.zeros_like(predicted) if self.no_memory else predicted
-            predicted = self.message_predictor(th.cat([memory_used, observed], dim=-1))
-        return task_states, map_states, received.float(), predicted.float(), has_message
-
+        return replay_sequence(self, inputs, state, "sequence")
 
     def _predict(self, observation: dict[str, th.Tensor], deterministic: bool = False) -> th.Tensor:  # type: ignore[override]
         raise RuntimeError("LatentSwarmPolicy is recurrent: call predict(obs, state, episode_start, deterministic)")
@@ -1019,7 +683,7 @@ class LatentSwarmPolicy(BasePolicy):
         observation, agent_names = as_vec_observation(observation, ACTOR_OBS_KEYS, "LatentSwarmPolicy")
         self.set_training_mode(False)
         obs_tensor = {key: th.as_tensor(observation[key], device=self.device) for key in ACTOR_OBS_KEYS}
-        if obs_tensor["local_obs"].dim() == len(_space_shape(self.observation_space["local_obs"])):
+        if obs_tensor["local_obs"].dim() == len(space_shape(self.observation_space["local_obs"])):
             raise ValueError("predict needs a batch of whole swarms (leading slot dimension), got a single observation")
         n_slots = obs_tensor["local_obs"].shape[0]
         if state is None:
@@ -1040,59 +704,3 @@ class LatentSwarmPolicy(BasePolicy):
         if agent_names is not None:
             return dict(zip(agent_names, actions_np)), new_state
         return actions_np, new_state
-
-
-SB3_POLICY_KWARGS = {
-    "net_arch": "predictor_hidden, decoder_hidden, critic_hidden, actor_hidden (one width each)",
-    "lstm_hidden_size": "latent_dim (d_mu = d_tau = d_rho), or map_dim, task_dim, memory_dim",
-    "n_lstm_layers": "none: the latent state is one GRU cell per part (Sec. III-B)",
-    "shared_lstm": "none: the critic reads the global state, not the latent state",
-    "enable_critic_lstm": "none: the critic reads the global state, not the latent state",
-    "activation_fn": "none: the MLPs use tanh",
-    "features_extractor_class": "none: the encoders are fixed by the observation keys",
-}
-"""SB3 / sb3-contrib ``policy_kwargs`` names and what ``LatentSwarmPolicy`` takes instead, for the error message."""
-
-
-def _unexpected_kwargs_message(unexpected: set[str]) -> str:
-    """``TypeError`` text for unknown ``policy_kwargs``: the valid names, and what to use instead of SB3's names."""
-    internal = {"self", "observation_space", "action_space", "lr_schedule", "unused_kwargs"}
-    valid = [name for name in inspect.signature(LatentSwarmPolicy.__init__).parameters if name not in internal]
-    hints = "".join(f"; {name} -> {SB3_POLICY_KWARGS[name]}" for name in sorted(unexpected) if name in SB3_POLICY_KWARGS)
-    return (
-        f"LatentSwarmPolicy got unexpected keyword argument(s) {sorted(unexpected)}{hints}. "
-        f"Valid policy_kwargs are: {', '.join(valid)}"
-    )
-
-
-def _check_log_std_bounds(bounds: Any) -> tuple[float, float]:
-    try:
-        low, high = (float(b) for b in bounds)
-    except (TypeError, ValueError):
-        raise TypeError(f"log_std_bounds must be a pair of numbers (low, high), got {bounds!r}") from None
-    if not (np.isfinite(low) and np.isfinite(high) and low < high):
-        raise ValueError(f"log_std_bounds must be finite with low < high, got {bounds!r}")
-    return low, high
-
-
-def _space_shape(space: spaces.Space) -> tuple[int, ...]:
-    """``space.shape``, which gymnasium types as optional (None for spaces without a fixed shape)."""
-    if space.shape is None:
-        raise ValueError(f"LatentSwarmPolicy needs observation spaces with a fixed shape, got {space}")
-    return space.shape
-
-
-def check_observation_space(observation_space: spaces.Space) -> None:
-    """Raise a clear error when the observation space lacks what the latent-swarm policy reads."""
-    if not isinstance(observation_space, spaces.Dict):
-        raise TypeError(
-            f"LatentSwarmPolicy needs a Dict observation space with keys {list(REQUIRED_KEYS)} "
-            f"(use sb3_latentswarm.make_vec_env), got {type(observation_space).__name__}"
-        )
-    missing = [key for key in REQUIRED_KEYS if key not in observation_space.spaces]
-    if missing:
-        raise ValueError(
-            f"The observation space lacks the key(s) {missing} needed by LatentSwarmPolicy "
-            f"(has {list(observation_space.spaces)}); use sb3_latentswarm.make_vec_env"
-        )
-

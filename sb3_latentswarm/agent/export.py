@@ -1,0 +1,232 @@
+"""ONNX export of one UAV's step: the recurrent state as explicit inputs and outputs (TorchRL's way for recurrent
+policies), so that the file runs anywhere onnxruntime does, without torch (:class:`~sb3_latentswarm.agent.OnnxSwarmAgent`).
+
+Inputs (batch dim B: one UAV, or several stepped together; float32 unless noted):
+
+=====================  ==================  ===============================================================
+``map_state``          (B, d_mu)           mu_{t-1}                                       (Sec. III-A)
+``task_state``         (B, d_tau)          tau_{t-1}
+``memory_state``       (B, d_rho)          rho_{t-1}
+``prev_local_obs``     (B, o_dim)          o_{t-1}
+``prev_message``       (B, d)              mbar_{t-1}, the best available message of the previous step
+``held_message``       (B, d)              the last message received in the episode (``hold_last``)
+``local_obs``          (B, o_dim)          o_t, flattened
+``proprio``            (B, e_dim)          e_t (its first three entries are p_t)
+``message_mean``       (B, d)              m_t, the mean of the messages received this step (Sec. III-B)
+``message_count``      (B,) int64          |N_t^i|; 0: nothing arrived (dropout: the substitute is used)
+``noise``              (B, action_dim)     eps ~ N(0, I); zeros give the mean action
+=====================  ==================  ===============================================================
+
+Outputs: ``action`` (B, action_dim) clipped to the action space, the next state (``next_map_state``, ...,
+``next_held_message``, in the order above), ``message`` (B, d), z_t = [mu_t; tau_t], what the UAV broadcasts for
+step t + 1, and ``predicted_message`` (B, d), mhat_t (Sec. III-C). All zeros is the state at an episode start.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import warnings
+from dataclasses import dataclass
+from typing import Any, cast
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from torch import nn
+
+from sb3_latentswarm.agent.agent import agent_spec, policy_of
+from sb3_latentswarm.envs.observations import PROPRIO_POSITION
+from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
+from sb3_latentswarm.latent_ppo.recurrence import AgentInputs, Blocks, agent_update, gru_cell, outgoing_message
+from sb3_latentswarm.latent_ppo.type_aliases import LatentState
+from sb3_latentswarm.utils.atomic import write_bytes
+
+__all__ = ["EXPORT_TOLERANCE", "INPUT_NAMES", "METADATA_KEY", "OUTPUT_NAMES", "OPSET", "ExportCheck", "export_onnx"]
+
+STATE_NAMES = tuple(LatentState._fields)
+INPUT_NAMES = (*STATE_NAMES, "local_obs", "proprio", "message_mean", "message_count", "noise")
+OUTPUT_NAMES = ("action", *(f"next_{name}" for name in STATE_NAMES), "message", "predicted_message")
+OPSET = 17
+METADATA_KEY = "sb3_latentswarm"
+"""The key of the file's metadata (JSON: sizes, action bounds, substitute, the checked error) read by the runtime."""
+EXPORT_TOLERANCE = 1e-5
+"""The largest difference between onnxruntime and the float32 torch step that :func:`export_onnx` accepts."""
+
+
+class _GraphLinears:
+    """:class:`~sb3_latentswarm.latent_ppo.recurrence.EagerLinears` in float32 with the GRU written as two
+    ``F.linear`` and its gates (:func:`gru_cell`, equal to ``nn.GRUCell`` to ~1e-7), which every ONNX runtime has."""
+
+    def __init__(self, policy: LatentSwarmPolicy) -> None:
+        self.policy = policy
+
+    def gru(self, cell: nn.GRUCell, blocks: Blocks, hidden: th.Tensor) -> th.Tensor:
+        return gru_cell(th.cat([block for _, block in blocks], dim=-1), hidden, cell)
+
+    def predictor(self, blocks: Blocks) -> th.Tensor:
+        return self.policy.message_predictor(th.cat([block for _, block in blocks], dim=-1))
+
+
+class AgentStep(nn.Module):
+    """The per-UAV step as a module of tensors only (what is exported): :func:`agent_update` in float32, then the
+    actor. Inputs and outputs: see the module docstring."""
+
+    def __init__(self, policy: LatentSwarmPolicy) -> None:
+        super().__init__()
+        self.policy = policy
+        spec = agent_spec(policy)
+        self.action_low = th.tensor(spec.action_low, dtype=th.float32)  # constants of the graph
+        self.action_high = th.tensor(spec.action_high, dtype=th.float32)
+
+    def forward(self, *tensors: th.Tensor) -> tuple[th.Tensor, ...]:
+        state = LatentState(*tensors[: len(STATE_NAMES)])
+        local_obs, proprio, message_mean, message_count, noise = tensors[len(STATE_NAMES):]
+        has_message = message_count > 0
+        inputs = AgentInputs(
+            keep=th.ones_like(proprio[:, :1]),
+            local_obs=local_obs,
+            proprio=proprio,
+            position=proprio[:, PROPRIO_POSITION],
+            received_message=th.where(has_message.unsqueeze(-1), message_mean, th.zeros_like(message_mean)),
+            has_message=has_message,
+        )
+        out = agent_update(self.policy, inputs, state, _GraphLinears(self.policy))
+        action = self.policy.actions_from_noise(out.state.task_state, noise)
+        action = th.minimum(th.maximum(action, self.action_low), self.action_high)
+        return (action, *out.state, outgoing_message(out.state), out.predicted_message)
+
+
+@dataclass(frozen=True)
+class ExportCheck:
+    """What :func:`export_onnx` checked before writing the file."""
+
+    path: str
+    max_abs_error: float
+    """The largest difference between onnxruntime and the float32 torch step, over every output of the check's steps
+    (each step fed the same inputs), below :data:`EXPORT_TOLERANCE`."""
+    tolerance: float
+    autocast_max_abs_error: float | None
+    """For a model that runs under bf16 autocast: the largest difference of the exported float32 step's action from
+    the model's own (bf16) step over the same steps (bf16 rounding, ~1e-2); ``None`` for a float32 model."""
+    n_steps: int
+    size_bytes: int
+
+
+def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 16, seed: int = 0) -> ExportCheck:
+    """Export one UAV's step of ``model`` to an ONNX file (float32, opset 17, a dynamic batch dim).
+
+    Before writing, the exported graph is run with onnxruntime on ``n_check_steps`` steps of a synthetic episode
+    (observations drawn from the observation space, messages from the agent's own states, dropouts included) and
+    compared with the torch step: the file is written (atomically: a temporary file, then ``os.replace``) only if every
+    output agrees within :data:`EXPORT_TOLERANCE`. A model trained under bf16 autocast is exported in float32 (an ONNX
+    CPU runtime has no bf16 ``MatMul``); its difference from the model's own bf16 step is reported in the result.
+
+    :param model: a :class:`~sb3_latentswarm.LatentSwarmPPO` or its policy
+    :param path: the ``.onnx`` file to write
+    :param n_check_steps: steps of the check (>= 1)
+    :param seed: seed of the check's inputs
+    :return: the :class:`ExportCheck`
+    :raise ImportError: without ``onnx`` and ``onnxruntime`` (``pip install "sb3-latentswarm[deploy]"``)
+    :raise RuntimeError: when onnxruntime and torch disagree beyond the tolerance (nothing is written)
+    """
+    import onnx
+    import onnxruntime as ort
+
+    policy = policy_of(model)
+    if int(n_check_steps) < 1:
+        raise ValueError(f"n_check_steps must be >= 1, got {n_check_steps}")
+    module = AgentStep(policy).to("cpu").eval()
+    was_device = policy.device
+    policy.to("cpu")
+    try:
+        check_inputs = _check_episode(policy, int(n_check_steps), seed)
+        buffer = io.BytesIO()
+        dynamic = {name: {0: "batch"} for name in (*INPUT_NAMES, *OUTPUT_NAMES)}
+        with th.no_grad(), warnings.catch_warnings():
+            # the TorchScript exporter on purpose: the dynamo one fixes the batch size where Python computes with it
+            warnings.simplefilter("ignore", DeprecationWarning)
+            th.onnx.export(module, tuple(th.as_tensor(x) for x in check_inputs[0]), buffer,  # type: ignore[arg-type]  # a file object works
+                           input_names=list(INPUT_NAMES),
+                           output_names=list(OUTPUT_NAMES), dynamic_axes=dynamic, opset_version=OPSET, dynamo=False)
+        graph = onnx.load_from_string(buffer.getvalue())
+        spec = agent_spec(policy)
+        metadata = {
+            "format": 1, "state_dims": list(policy.latent_dims), "local_obs_shape": list(spec.local_obs_shape),
+            "proprio_dim": spec.proprio_dim, "message_dim": spec.message_dim, "action_dim": spec.action_dim,
+            "action_low": list(spec.action_low), "action_high": list(spec.action_high),
+            "message_substitute": policy.message_substitute, "no_memory": policy.no_memory,
+            "trained_autocast": policy.autocast,
+        }
+        onnx.helper.set_model_props(graph, {METADATA_KEY: json.dumps(metadata)})
+        data = graph.SerializeToString()
+        session = ort.InferenceSession(data, providers=["CPUExecutionProvider"])
+        error, autocast_error = 0.0, None if policy.autocast is None else 0.0
+        for inputs in check_inputs:
+            with th.no_grad():
+                expected = [t.numpy() for t in module(*(th.as_tensor(x) for x in inputs))]
+            got = session.run(list(OUTPUT_NAMES), dict(zip(INPUT_NAMES, inputs)))
+            error = max(error, *(float(np.abs(g - e).max()) for g, e in zip(got, expected)))
+            if autocast_error is not None:
+                autocast_error = max(autocast_error, float(np.abs(got[0] - _own_step_action(policy, inputs)).max()))
+        if not error <= EXPORT_TOLERANCE:  # (NaN fails too)
+            raise RuntimeError(f"onnxruntime differs from torch by {error:.3g} > {EXPORT_TOLERANCE:g}; nothing written")
+    finally:
+        policy.to(was_device)
+    write_bytes(path, data)
+    return ExportCheck(os.fspath(path), error, EXPORT_TOLERANCE, autocast_error, int(n_check_steps), len(data))
+
+
+def _check_episode(policy: LatentSwarmPolicy, n_steps: int, seed: int) -> list[tuple[np.ndarray, ...]]:
+    """The inputs of ``n_steps`` steps of 3 UAVs (batch 3) stepped by the float32 export module: observations from the
+    observation space, messages the UAVs' own (every link up every third step, none every fourth)."""
+    rng = np.random.default_rng(seed)
+    local_space, proprio_space = (cast(spaces.Box, policy.observation_space[key]) for key in ("local_obs", "proprio"))
+    n = 3
+    local_shape = local_space.shape
+    module = AgentStep(policy).eval()
+    state = [np.zeros((n, dim), dtype=np.float32) for dim in policy.latent_dims]
+    message = np.zeros((n, policy.message_dim), dtype=np.float32)
+    steps = []
+    for t in range(n_steps):
+        local_obs = rng.uniform(_finite(local_space.low), _finite(local_space.high), (n, *local_shape))
+        if np.issubdtype(local_space.dtype, np.integer):
+            local_obs = np.round(local_obs)
+        local_obs = local_obs.reshape(n, -1).astype(np.float32)
+        proprio = rng.uniform(_finite(proprio_space.low), _finite(proprio_space.high), (n, policy.proprio_dim))
+        proprio = proprio.astype(np.float32)
+        links = rng.random((n, n)) < 0.5
+        links |= t % 3 == 0
+        links &= t % 4 != 3
+        np.fill_diagonal(links, False)
+        count = links.sum(1)
+        mean = (links.astype(np.float32) @ message) / np.maximum(count, 1)[:, None].astype(np.float32)
+        noise = rng.standard_normal((n, policy.action_dim)).astype(np.float32) * (t % 2)
+        inputs = (*state, local_obs, proprio, mean.astype(np.float32), count.astype(np.int64), noise)
+        steps.append(inputs)
+        with th.no_grad():
+            out = [t.numpy() for t in module(*(th.as_tensor(x) for x in inputs))]
+        state, message = out[1 : 1 + len(STATE_NAMES)], out[1 + len(STATE_NAMES)]
+        assert all(math.isfinite(float(np.abs(x).max())) for x in out)
+    return steps
+
+
+def _finite(bound: np.ndarray) -> np.ndarray:
+    """A space's bound with the infinite entries replaced by +-1 (the scale of normalized observations)."""
+    return np.clip(np.asarray(bound, dtype=np.float64), -1.0, 1.0)
+
+
+def _own_step_action(policy: LatentSwarmPolicy, inputs: tuple[np.ndarray, ...]) -> np.ndarray:
+    """The action of the policy's own step (under its autocast) for one step's export inputs."""
+    state = LatentState(*(th.as_tensor(x) for x in inputs[: len(STATE_NAMES)]))
+    local_obs, proprio, mean, count, noise = (th.as_tensor(x) for x in inputs[len(STATE_NAMES):])
+    has_message = count > 0
+    agent_inputs = AgentInputs(th.ones(len(count), 1), local_obs, proprio, proprio[:, PROPRIO_POSITION],
+                               th.where(has_message.unsqueeze(-1), mean, th.zeros_like(mean)), has_message)
+    with th.no_grad():
+        out = policy.agent_step(agent_inputs, state)
+        action = policy.actions_from_noise(out.state.task_state, noise)
+    low, high = (np.asarray(bound, dtype=np.float32) for bound in (policy.action_space.low, policy.action_space.high))
+    return np.clip(action.numpy(), low, high)

@@ -1,0 +1,131 @@
+"""What one UAV's step reads, checked before any state changes; numpy only (no torch), shared by
+:class:`~sb3_latentswarm.agent.LatentSwarmAgent` and :class:`~sb3_latentswarm.agent.OnnxSwarmAgent`."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+
+__all__ = ["AgentSpec", "AgentStepInfo", "StepArrays", "check_step"]
+
+
+@dataclass(frozen=True)
+class AgentSpec:
+    """The sizes a per-UAV step works with (read from the policy, or from an exported file's metadata)."""
+
+    local_obs_shape: tuple[int, ...]
+    """Shape of one UAV's ``local_obs`` o_t (flattened to o_dim floats inside the step)."""
+    proprio_dim: int
+    """e_dim, the size of ``proprio`` e_t (its first three entries are the normalized position p_t)."""
+    message_dim: int
+    """d = d_mu + d_tau, the floats of one message z = [mu; tau] (Sec. III-B)."""
+    action_dim: int
+    action_low: tuple[float, ...]
+    action_high: tuple[float, ...]
+
+
+class AgentStepInfo(NamedTuple):
+    """What one step computed besides the action (numpy, float32)."""
+
+    message: np.ndarray
+    """z_t = [mu_t; tau_t], the message this UAV broadcasts for step t + 1 (what :meth:`LatentSwarmAgent.message`
+    returns next), (d,)."""
+    received_message: np.ndarray
+    """m_t, the mean of the messages received this step (zero when none), (d,)."""
+    has_message: bool
+    """Whether any message arrived (N_t^i not empty)."""
+    predicted_message: np.ndarray
+    """mhat_t = P_zeta(rho_t, o_t, e_t) (Sec. III-C), computed at every step, (d,)."""
+    best_message: np.ndarray
+    """mbar_t: m_t if a message arrived, else the policy's ``message_substitute``, (d,)."""
+
+
+@dataclass(frozen=True)
+class StepArrays:
+    """One step's checked inputs, float32."""
+
+    local_obs: np.ndarray
+    """o_t, flattened, (o_dim,)."""
+    proprio: np.ndarray
+    """e_t, (e_dim,)."""
+    message_mean: np.ndarray
+    """m_t, the mean of the received messages (zero when none), (d,)."""
+    message_count: int
+    """|N_t^i|, how many messages arrived."""
+    noise: np.ndarray | None
+    """eps ~ N(0, I) for a sampled action, (action_dim,); ``None`` for the mean action."""
+
+
+def check_step(spec: AgentSpec, observation: Any, received_messages: Any, deterministic: bool, noise: Any,
+               rng: Any, own_rng: np.random.Generator) -> StepArrays:
+    """Check one step's inputs and turn them into float32 arrays.
+
+    :param observation: a mapping with ``local_obs`` (``spec.local_obs_shape``) and ``proprio`` (``(e_dim,)``); other
+        keys (``link_row``, the critic's keys) are ignored, so a PettingZoo per-agent observation fits as is
+    :param received_messages: the messages z_{t-1}^j that arrived this step, (k, d) for any k >= 0 (an empty
+        sequence is k = 0)
+    :param deterministic: the mean action (then ``noise`` and ``rng`` must be None)
+    :param noise: eps ~ N(0, I), (action_dim,), or None
+    :param rng: a ``numpy.random.Generator`` to draw eps from, or None
+    :param own_rng: drawn from when the action is sampled and neither ``noise`` nor ``rng`` is given
+    :raise TypeError: for an observation that is not a mapping, non-numeric arrays, ``rng`` not a Generator
+    :raise ValueError: for a missing key, a wrong shape, a non-finite value, noise with a deterministic step
+    """
+    if not isinstance(observation, Mapping):
+        raise TypeError(f"observation must be a mapping with keys 'local_obs' and 'proprio', got {type(observation).__name__}")
+    missing = [key for key in ("local_obs", "proprio") if key not in observation]
+    if missing:
+        raise ValueError(f"observation lacks the key(s) {missing} (has {list(observation)})")
+    local_obs = _numeric("observation['local_obs']", observation["local_obs"])
+    if local_obs.shape != spec.local_obs_shape:
+        raise ValueError(f"observation['local_obs'] must have shape {spec.local_obs_shape}, got {local_obs.shape}")
+    proprio = _numeric("observation['proprio']", observation["proprio"])
+    if proprio.shape != (spec.proprio_dim,):
+        raise ValueError(f"observation['proprio'] must have shape ({spec.proprio_dim},), got {proprio.shape}")
+    if not (np.isfinite(local_obs).all() and np.isfinite(proprio).all()):
+        raise ValueError("observation holds a non-finite value (NaN or inf)")
+
+    messages = _numeric("received_messages", received_messages)
+    if messages.size == 0 and messages.ndim <= 2 and (messages.ndim < 2 or messages.shape[-1] in (0, spec.message_dim)):
+        messages = messages.reshape(0, spec.message_dim)
+    if messages.ndim != 2 or messages.shape[1] != spec.message_dim:
+        raise ValueError(
+            f"received_messages must have shape (k, {spec.message_dim}) (k messages of d = d_mu + d_tau floats), "
+            f"got {messages.shape}"
+        )
+    if not np.isfinite(messages).all():
+        bad = sorted({int(i) for i in np.flatnonzero(~np.isfinite(messages).all(axis=1))})
+        raise ValueError(f"received_messages rows {bad} hold a non-finite value (NaN or inf)")
+    count = messages.shape[0]
+    mean = messages.mean(axis=0, dtype=np.float32) if count else np.zeros(spec.message_dim, dtype=np.float32)
+
+    if not isinstance(deterministic, (bool, np.bool_)):
+        raise TypeError(f"deterministic must be a bool, got {deterministic!r}")
+    if noise is not None and rng is not None:
+        raise ValueError("give noise or rng, not both")
+    if rng is not None and not isinstance(rng, np.random.Generator):
+        raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+    eps = None
+    if deterministic:
+        if noise is not None or rng is not None:
+            raise ValueError("a deterministic step takes the mean action: noise and rng must be None")
+    elif noise is not None:
+        eps = _numeric("noise", noise)
+        if eps.shape != (spec.action_dim,):
+            raise ValueError(f"noise must have shape ({spec.action_dim},), got {eps.shape}")
+        if not np.isfinite(eps).all():
+            raise ValueError("noise holds a non-finite value (NaN or inf)")
+    else:
+        eps = (own_rng if rng is None else rng).standard_normal(spec.action_dim).astype(np.float32)
+    return StepArrays(local_obs.reshape(-1), proprio, mean.astype(np.float32), count, eps)
+
+
+def _numeric(name: str, value: Any) -> np.ndarray:
+    """``value`` as a new float32 array; ``TypeError`` unless it holds numbers (bool, int or float)."""
+    array = np.asarray(value)
+    if array.dtype.kind not in "biuf":
+        raise TypeError(f"{name} must hold numbers, got an array of dtype {array.dtype}")
+    return np.array(array, dtype=np.float32)  # a writable copy (torch warns on read-only arrays)

@@ -1,0 +1,106 @@
+"""``OnnxSwarmAgent``: one UAV's policy from a file written by :func:`~sb3_latentswarm.agent.export_onnx`, run with
+onnxruntime and numpy only (this module never imports torch), with the API of
+:class:`~sb3_latentswarm.agent.LatentSwarmAgent`."""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any
+
+import numpy as np
+
+from sb3_latentswarm.agent.inputs import AgentSpec, AgentStepInfo, check_step
+
+__all__ = ["OnnxSwarmAgent"]
+
+_METADATA_KEY = "sb3_latentswarm"  # export.METADATA_KEY (export imports torch)
+_FORMAT = 1
+_STATE_NAMES = ("map_state", "task_state", "memory_state", "prev_local_obs", "prev_message", "held_message")
+_OUTPUT_NAMES = ("action", *(f"next_{name}" for name in _STATE_NAMES), "message", "predicted_message")
+
+
+class OnnxSwarmAgent:
+    """One UAV of a trained swarm, stepped with onnxruntime: :meth:`reset`, :meth:`message` and :meth:`step` as
+    :class:`~sb3_latentswarm.agent.LatentSwarmAgent` (the same checks and errors); the latent state is kept here in
+    numpy and passed through the graph at each step.
+
+    :param path: an ``.onnx`` file written by :func:`~sb3_latentswarm.agent.export_onnx`
+    :param providers: onnxruntime execution providers (default: the CPU)
+    :param intra_op_num_threads: threads of one step (default 1: one UAV's step is small, and a computer on a UAV runs
+        other processes)
+    :raise ImportError: without onnxruntime (``pip install "sb3-latentswarm[deploy]"``)
+    :raise ValueError: for a file without the metadata :func:`export_onnx` writes
+    """
+
+    def __init__(self, path: str | os.PathLike[str], providers: list[str] | None = None,
+                 intra_op_num_threads: int = 1) -> None:
+        import onnxruntime as ort
+
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = int(intra_op_num_threads)
+        self.session = ort.InferenceSession(os.fspath(path), options, providers=providers or ["CPUExecutionProvider"])
+        raw = self.session.get_modelmeta().custom_metadata_map.get(_METADATA_KEY)
+        if raw is None:
+            raise ValueError(f"{os.fspath(path)!r} has no {_METADATA_KEY!r} metadata: export it with export_onnx")
+        self.metadata: dict[str, Any] = json.loads(raw)
+        if self.metadata.get("format") != _FORMAT:
+            found = self.metadata.get("format")
+            raise ValueError(f"{os.fspath(path)!r} has export format {found!r}; this runtime reads {_FORMAT}")
+        meta = self.metadata
+        self.spec = AgentSpec(tuple(meta["local_obs_shape"]), int(meta["proprio_dim"]), int(meta["message_dim"]),
+                              int(meta["action_dim"]), tuple(meta["action_low"]), tuple(meta["action_high"]))
+        self.state_dims = tuple(int(d) for d in meta["state_dims"])
+        self._state: list[np.ndarray] | None = None
+        self._message = np.zeros((1, self.spec.message_dim), dtype=np.float32)
+        self._rng = np.random.default_rng()
+
+    @property
+    def message_dim(self) -> int:
+        """d = d_mu + d_tau, the floats of one message."""
+        return self.spec.message_dim
+
+    def reset(self, seed: int | None = None) -> None:
+        """Start an episode: the latent state becomes zero. ``seed`` seeds the generator of sampled actions."""
+        self._state = [np.zeros((1, dim), dtype=np.float32) for dim in self.state_dims]
+        self._message = np.zeros((1, self.spec.message_dim), dtype=np.float32)
+        self._rng = np.random.default_rng(seed)
+
+    def message(self) -> np.ndarray:
+        """z = [mu; tau], the message this UAV broadcasts now, float32, (d,) (zero right after :meth:`reset`).
+
+        :raise RuntimeError: before the first :meth:`reset`
+        """
+        self._current_state()
+        return self._message[0].copy()
+
+    def step(self, observation: Any, received_messages: Any, deterministic: bool = False, noise: Any = None,
+             rng: np.random.Generator | None = None, return_info: bool = False) -> Any:
+        """One step: see :meth:`LatentSwarmAgent.step <sb3_latentswarm.agent.LatentSwarmAgent.step>` (same arguments,
+        results and errors)."""
+        state = self._current_state()
+        arrays = check_step(self.spec, observation, received_messages, deterministic, noise, rng, self._rng)
+        eps = np.zeros(self.spec.action_dim, dtype=np.float32) if arrays.noise is None else arrays.noise
+        feed = dict(zip(_STATE_NAMES, state))
+        feed.update(local_obs=arrays.local_obs[None], proprio=arrays.proprio[None],
+                    message_mean=arrays.message_mean[None], message_count=np.array([arrays.message_count], dtype=np.int64),
+                    noise=eps[None])
+        outputs = self.session.run(list(_OUTPUT_NAMES), feed)
+        self._state = outputs[1 : 1 + len(_STATE_NAMES)]
+        self._message = outputs[-2]
+        action = outputs[0][0]
+        if not return_info:
+            return action
+        info = AgentStepInfo(
+            message=self.message(),
+            received_message=arrays.message_mean,
+            has_message=arrays.message_count > 0,
+            predicted_message=outputs[-1][0],
+            best_message=self._state[_STATE_NAMES.index("prev_message")][0],
+        )
+        return action, info
+
+    def _current_state(self) -> list[np.ndarray]:
+        if self._state is None:
+            raise RuntimeError("OnnxSwarmAgent: call reset() before message() or step()")
+        return self._state

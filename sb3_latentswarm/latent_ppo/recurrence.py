@@ -1,0 +1,450 @@
+"""The per-step function of Sec. III, written once: message pooling, then the latent updates of any batch of agents.
+
+The batched policy step is :func:`pool_messages` + :func:`agent_update` (:func:`swarm_step`); a single UAV
+(:class:`~sb3_latentswarm.agent.LatentSwarmAgent`) averages the messages its radio received and calls
+:func:`agent_update` with a batch of 1; the training replay (:func:`replay_sequence`) runs :func:`swarm_step` at every
+step of a time-major sequence with other :class:`Linears`: the same equations, with the GEMMs arranged for a whole
+sequence (the observation columns of each input projection computed once for all T * B rows, the weight gradients of
+the recurrent columns summed once per sequence by :class:`SequenceLinear`).
+
+Per UAV i at step t, in the paper's order:
+
+* message of UAV j: z_{t-1}^j = [mu_{t-1}^j ; tau_{t-1}^j]; aggregate over live in-links (Sec. III-B):
+  m_t^i = mean_{j in N_t^i} z_{t-1}^j (zero when N_t^i is empty)
+* memory (Sec. III-A): rho_t = G_psi(rho_{t-1}, tau_{t-1}, o_{t-1}, mbar_{t-1})
+* predictor (Sec. III-C): mhat_t = P_zeta(rho_t, o_t, e_t); best available message mbar_t = m_t if N_t^i is not
+  empty, else the substitute (mhat_t in the paper, see ``MESSAGE_SUBSTITUTES``)
+* map (Sec. III-A): mu_t = E_phi(mu_{t-1}, o_t, p_t, m_t^mu) with m_t^mu = 0 when nothing arrived (the asymmetric
+  update: the map state never sees a predicted message)
+* task (Sec. III-A): tau_t = F_theta(tau_{t-1}, o_t, e_t, mu_{t-1}, mbar_t)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
+
+import torch as th
+import torch.nn.functional as F
+from torch import nn
+
+from sb3_latentswarm.latent_ppo.type_aliases import LatentState
+
+if TYPE_CHECKING:
+    from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
+
+__all__ = [
+    "AgentInputs",
+    "EagerLinears",
+    "Linears",
+    "SequenceLinear",
+    "SequenceLinears",
+    "StepInputs",
+    "StepOutput",
+    "agent_update",
+    "gru_cell",
+    "gru_update",
+    "outgoing_message",
+    "pool_messages",
+    "replay_sequence",
+    "swarm_step",
+]
+
+Blocks = Sequence[tuple[str, th.Tensor]]
+"""The input of a layer as named column blocks, in the order of the layer's input columns. The names of
+:data:`OBSERVED_BLOCKS` are read from the observation (known for a whole sequence in advance); the others depend on
+the recurrence."""
+OBSERVED_BLOCKS = ("local_obs", "proprio", "position", "prev_local_obs")
+
+
+class AgentInputs(NamedTuple):
+    """What :func:`agent_update` reads at step t, for a batch of B agents (any agents: a swarm's, several swarms', one
+    UAV's), after the messages have been pooled."""
+
+    keep: th.Tensor
+    """1 - episode_start, (B, 1): the carried state is zeroed where an episode starts."""
+    local_obs: th.Tensor
+    """o_t, flattened, float32, (B, o_dim)."""
+    proprio: th.Tensor
+    """e_t, float32, (B, e_dim)."""
+    position: th.Tensor
+    """p_t, the first entries of e_t, (B, 3)."""
+    received_message: th.Tensor
+    """m_t, the mean of the messages z_{t-1}^j received over live in-links, zero when none arrived, (B, d_mu + d_tau)."""
+    has_message: th.Tensor
+    """Whether N_t^i is not empty, (B,) bool."""
+
+
+class StepInputs(NamedTuple):
+    """What a swarm step reads from the observation, before the recurrence (``LatentSwarmPolicy.step_inputs``).
+
+    Leading dims ``(...)``: ``(B,)`` for one step, ``(T, B)`` for a training sequence (then indexed per step)."""
+
+    keep: th.Tensor
+    """1 - episode_start, (..., B, 1)."""
+    local_obs: th.Tensor
+    """o_t, flattened, float32, (..., B, o_dim)."""
+    proprio: th.Tensor
+    """e_t, float32, (..., B, e_dim)."""
+    position: th.Tensor
+    """p_t, the first entries of e_t, (..., B, 3)."""
+    link_mask: th.Tensor
+    """[..., s, i, j] = 1 iff the link j -> i of swarm s delivered at t, (..., n_swarms, N, N)."""
+    has_message: th.Tensor
+    """Whether N_t^i is not empty, (..., B) bool."""
+
+
+class StepOutput(NamedTuple):
+    """Everything one latent step produces for a batch of agents (leading dim: slots)."""
+
+    state: LatentState
+    """The new state, to carry into the next step."""
+    received_message: th.Tensor
+    """m_t, the mean of live in-link messages (zeros when none arrived), (B, d_mu + d_tau)."""
+    predicted_message: th.Tensor
+    """mhat_t = P(rho_t, o_t, e_t), evaluated at every step, (B, d_mu + d_tau)."""
+    has_message: th.Tensor
+    """Whether N_t^i is not empty, (B,) bool."""
+    sent_message: th.Tensor
+    """z_{t-1}^i = [mu_{t-1}^i; tau_{t-1}^i], the message this agent broadcast for step t (zero at an episode start),
+    (B, d_mu + d_tau)."""
+
+
+# ---------------------------------------------------------------------------------------------- the equations
+def outgoing_message(state: LatentState, keep: th.Tensor | None = None) -> th.Tensor:
+    """z^i = [mu^i; tau^i] (Sec. III-B): the message an agent broadcasts from its state, (B, d_mu + d_tau).
+
+    :param state: the state after step t-1 (the message is received at step t)
+    :param keep: (B, 1) 1 - episode_start: zero where an episode starts; ``None``: keep everything
+    """
+    if keep is None:
+        return th.cat([state.map_state, state.task_state], dim=-1)
+    return th.cat([state.map_state * keep, state.task_state * keep], dim=-1)
+
+
+def pool_messages(sent_messages: th.Tensor, link_mask: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+    """Sec. III-B: m_t^i = mean_{j in N_t^i} z_{t-1}^j over the live in-links of every agent, zero when none.
+
+    :param sent_messages: z_{t-1}^j of every agent, (n_swarms, N, d)
+    :param link_mask: [s, i, j] = 1.0 iff the link j -> i of swarm s delivered at t, float, (n_swarms, N, N)
+    :return: received messages m_t (n_swarms * N, d), agent-minor, and whether anything arrived (n_swarms * N,) bool
+    """
+    n_swarms, n_agents, dim = sent_messages.shape
+    in_degree = link_mask.sum(-1, keepdim=True)  # |N_t^i|, (n_swarms, N, 1)
+    received = (th.bmm(link_mask, sent_messages) / in_degree.clamp(min=1.0)).view(n_swarms * n_agents, dim)
+    return received, (in_degree > 0).view(n_swarms * n_agents)
+
+
+def agent_update(policy: LatentSwarmPolicy, inputs: AgentInputs, state: LatentState,
+                 linears: Linears | None = None) -> StepOutput:
+    """Everything after pooling of Sec. III for a batch of agents: memory, predictor / substitute, the asymmetric map
+    update and the task update. No agent reads another's row: any batch of agents gives the same rows.
+
+    :param policy: the networks (and ``message_substitute``, ``no_memory``)
+    :param inputs: this step's observation and pooled message
+    :param state: the state carried in from step t-1, (B, ...) per field
+    :param linears: how the layers' GEMMs are computed (default :class:`EagerLinears`: the rollout's computation)
+    """
+    linears = EagerLinears(policy) if linears is None else linears
+    map_prev, task_prev, memory_prev, local_prev, message_prev, held_prev = (field * inputs.keep for field in state)
+    local_obs, proprio, received_message = inputs.local_obs, inputs.proprio, inputs.received_message
+    sent_message = th.cat([map_prev, task_prev], dim=-1)  # z_{t-1}^i, (B, d_mu + d_tau)
+
+    # Sec. III-A: rho_t = G_psi(rho_{t-1}, tau_{t-1}, o_{t-1}, mbar_{t-1})   (no_memory: rho zeroed before use)
+    if policy.no_memory:
+        memory_prev = th.zeros_like(memory_prev)
+    memory_state = linears.gru(policy.memory_encoder, (("task_prev", task_prev), ("prev_local_obs", local_prev),
+                                                      ("message_prev", message_prev)), memory_prev)
+    memory_used = th.zeros_like(memory_state) if policy.no_memory else memory_state
+
+    # Sec. III-C: mhat_t = P_zeta(rho_t, o_t, e_t);  mbar_t = m_t if N_t^i != {} else mhat_t
+    predicted_message = linears.predictor((("memory", memory_used), ("local_obs", local_obs), ("proprio", proprio)))
+    # (extensions: hold_last / own_message / zero replace mhat_t; see MESSAGE_SUBSTITUTES)
+    received_now = inputs.has_message.unsqueeze(-1)
+    held_message = th.where(received_now, received_message, held_prev)
+    if policy.message_substitute == "predicted":
+        substitute = predicted_message
+    elif policy.message_substitute == "zero":
+        substitute = th.zeros_like(predicted_message)
+    elif policy.message_substitute == "hold_last":
+        substitute = held_prev
+    else:  # own_message
+        substitute = sent_message
+    best_message = th.where(received_now, received_message, substitute)
+
+    # Sec. III-A, asymmetric update: mu_t = E_phi(mu_{t-1}, o_t, p_t, m^mu_t), m^mu_t = 0 when nothing arrived
+    # (received_message is already zero there, so the predictor never reaches the map state)
+    map_message = received_message[:, : policy.map_dim]
+    map_state = linears.gru(policy.map_encoder, (("local_obs", local_obs), ("position", inputs.position),
+                                                ("map_message", map_message)), map_prev)
+
+    # Sec. III-A: tau_t = F_theta(tau_{t-1}, o_t, e_t, mu_{t-1}, mbar_t)
+    task_state = linears.gru(policy.task_encoder, (("local_obs", local_obs), ("proprio", proprio), ("map_prev", map_prev),
+                                                  ("best_message", best_message)), task_prev)
+
+    new_state = LatentState(map_state, task_state, memory_state, local_obs, best_message, held_message)
+    return StepOutput(new_state, received_message, predicted_message, inputs.has_message, sent_message)
+
+
+def swarm_step(policy: LatentSwarmPolicy, inputs: StepInputs, state: LatentState,
+               linears: Linears | None = None) -> StepOutput:
+    """One step of whole swarms: :func:`pool_messages` of the messages z_{t-1} over the step's link mask, then
+    :func:`agent_update`.
+
+    :param inputs: one step's :class:`StepInputs`, leading dim B = n_swarms * N (env-major)
+    :param state: the state carried in from step t-1, (B, ...) per field
+    """
+    n_swarms, n_agents = inputs.link_mask.shape[:2]
+    sent = outgoing_message(state, inputs.keep).view(n_swarms, n_agents, policy.message_dim)
+    received_message, has_message = pool_messages(sent, inputs.link_mask)
+    agent_inputs = AgentInputs(inputs.keep, inputs.local_obs, inputs.proprio, inputs.position, received_message,
+                               has_message)
+    return agent_update(policy, agent_inputs, state, linears)
+
+
+# ---------------------------------------------------------------------------------------------- how GEMMs are computed
+class Linears(Protocol):
+    """The layers of :func:`agent_update` applied to named column blocks (:data:`Blocks`)."""
+
+    def gru(self, cell: nn.GRUCell, blocks: Blocks, hidden: th.Tensor) -> th.Tensor:
+        """``cell(cat(blocks), hidden)``, float32, (B, hidden_size)."""
+
+    def predictor(self, blocks: Blocks) -> th.Tensor:
+        """P_zeta(cat(blocks)), (B, d_mu + d_tau)."""
+
+
+class EagerLinears:
+    """Each layer on the concatenation of its blocks, one GEMM per projection: the rollout's computation (float32:
+    ``nn.GRUCell``'s own kernel; under autocast :func:`gru_cell`, whose GEMMs autocast reaches)."""
+
+    def __init__(self, policy: LatentSwarmPolicy) -> None:
+        self.policy = policy
+
+    def gru(self, cell: nn.GRUCell, blocks: Blocks, hidden: th.Tensor) -> th.Tensor:
+        inputs = th.cat([block for _, block in blocks], dim=-1)
+        return cell(inputs, hidden) if self.policy.autocast is None else gru_cell(inputs, hidden, cell)
+
+    def predictor(self, blocks: Blocks) -> th.Tensor:
+        return self.policy.message_predictor(th.cat([block for _, block in blocks], dim=-1))
+
+
+class _SplitLinear(NamedTuple):
+    observed: tuple[th.Tensor, ...]  # T x (B, out): the observed columns' projection (with the bias), per step
+    recurrent: SequenceLinear | None  # the recurrent columns
+    hidden: SequenceLinear | None  # W_hh h + b_hh of a GRU
+
+
+class SequenceLinears:
+    """The layers of :func:`agent_update` over a time-major sequence, step :attr:`t` at a time: each input projection is
+    split by input columns into the blocks read from the observation (:data:`OBSERVED_BLOCKS`), projected once for all
+    T * B rows at the first call (the bias rides on them), and the blocks that depend on the recurrence, projected per
+    step by a :class:`SequenceLinear` (weights cast once to ``dtype``, weight gradient summed once per sequence). The
+    sums of the split projections round differently from one GEMM: float32 results agree with :class:`EagerLinears`
+    to about 1e-6.
+
+    :param sequence: the observed blocks of the whole sequence by name, (T, B, width) each
+    :param dtype: the GEMMs' dtype (the autocast dtype, or the weights')
+    """
+
+    def __init__(self, policy: LatentSwarmPolicy, sequence: dict[str, th.Tensor], dtype: th.dtype) -> None:
+        self.policy, self.sequence, self.dtype = policy, sequence, dtype
+        self.t = 0
+        self._layers: dict[nn.Module, _SplitLinear] = {}
+
+    def _split(self, layer: nn.Module, weight: th.Tensor, bias: th.Tensor | None, blocks: Blocks,
+               hidden: tuple[th.Tensor, th.Tensor] | None = None) -> _SplitLinear:
+        if layer not in self._layers:
+            columns: dict[bool, list[th.Tensor]] = {True: [], False: []}  # observed?: column blocks of the weight
+            start = 0
+            for name, block in blocks:
+                width = block.shape[-1]
+                columns[name in OBSERVED_BLOCKS].append(weight[:, start : start + width])
+                start += width
+            observed_names = [name for name, _ in blocks if name in OBSERVED_BLOCKS]
+            observed: tuple[th.Tensor, ...] = ()
+            if observed_names:
+                observed_inputs = th.cat([self.sequence[name] for name in observed_names], dim=-1)  # (T, B, width)
+                # unbind: its backward stacks the T gradients once (indexing [t] would zero-fill a (T, B, .) per step)
+                observed = F.linear(observed_inputs, _columns(columns[True]), bias).unbind(0)
+            recurrent = None
+            if columns[False]:
+                recurrent = SequenceLinear(_columns(columns[False]), None if observed else bias, self.dtype)
+            hidden_linear = None if hidden is None else SequenceLinear(*hidden, self.dtype)
+            self._layers[layer] = _SplitLinear(observed, recurrent, hidden_linear)
+        return self._layers[layer]
+
+    def _project(self, split: _SplitLinear, blocks: Blocks) -> th.Tensor:
+        added = split.observed[self.t] if split.observed else None
+        if split.recurrent is None:
+            assert added is not None  # a layer has at least one block
+            return added
+        return split.recurrent(th.cat([block for name, block in blocks if name not in OBSERVED_BLOCKS], dim=-1), added)
+
+    def gru(self, cell: nn.GRUCell, blocks: Blocks, hidden: th.Tensor) -> th.Tensor:
+        split = self._split(cell, cell.weight_ih, cell.bias_ih, blocks, (cell.weight_hh, cell.bias_hh))
+        assert split.hidden is not None
+        return gru_update(self._project(split, blocks), split.hidden(hidden), hidden)
+
+    def predictor(self, blocks: Blocks) -> th.Tensor:
+        first, activation, last = self.policy.message_predictor  # Linear, Tanh, Linear
+        assert isinstance(first, nn.Linear) and isinstance(last, nn.Linear)
+        split = self._split(first, first.weight, first.bias, blocks)
+        if last not in self._layers:  # reads the hidden layer, which depends on the recurrence
+            self._layers[last] = _SplitLinear((), SequenceLinear(last.weight, last.bias, self.dtype), None)
+        output = self._layers[last].recurrent
+        assert output is not None
+        return output(activation(self._project(split, blocks)))
+
+
+def _columns(blocks: list[th.Tensor]) -> th.Tensor:
+    return blocks[0] if len(blocks) == 1 else th.cat(blocks, dim=1)
+
+
+def replay_sequence(policy: LatentSwarmPolicy, inputs: StepInputs, state: LatentState,
+                    linears: str = "eager") -> tuple[th.Tensor, ...]:
+    """The latent updates of time-major sequences of whole swarms: :func:`swarm_step` at every step (in the caller's
+    autocast region).
+
+    :param inputs: :class:`StepInputs` of the sequence, leading dims (T, B)
+    :param state: the state carried into the first step, (B, ...) per field
+    :param linears: ``"eager"``: the policy's ``recurrent_step`` per step (the rollout's computation, compiled when
+        the policy's step is); ``"sequence"``: :class:`SequenceLinears`
+    :return: tau_t, mu_t, m_t, mhat_t (T, B, dim each, float32) and has_message (T, B)
+    """
+    n_steps = inputs.keep.shape[0]
+    if linears == "sequence":
+        weight_dtype = policy.map_encoder.weight_ih.dtype
+        dtype = weight_dtype if policy.autocast is None else th.get_autocast_dtype(policy.device.type)
+        # o_{t-1}: the stored one before the first step, zeroed at episode starts as the carried state is
+        prev_local_obs = th.cat([state.prev_local_obs.unsqueeze(0), inputs.local_obs[:-1]]) * inputs.keep
+        sequence = {"local_obs": inputs.local_obs, "proprio": inputs.proprio, "position": inputs.position,
+                    "prev_local_obs": prev_local_obs}
+        sequence_linears = SequenceLinears(policy, sequence, dtype)
+    outputs: list[list[th.Tensor]] = [[], [], [], [], []]
+    for t in range(n_steps):
+        step_inputs = StepInputs._make(field[t] for field in inputs)
+        if linears == "sequence":
+            sequence_linears.t = t
+            step = swarm_step(policy, step_inputs, state, sequence_linears)
+        else:
+            step = policy.recurrent_step(step_inputs, state)
+        state = step.state
+        for output, value in zip(outputs, (state.task_state, state.map_state, step.received_message,
+                                           step.predicted_message, step.has_message)):
+            output.append(value)
+    task_states, map_states, received, predicted, has_message = (th.stack(output) for output in outputs)
+    return task_states, map_states, received.float(), predicted.float(), has_message
+
+
+# ---------------------------------------------------------------------------------------------- GRU and GEMM kernels
+def gru_cell(inputs: th.Tensor, hidden: th.Tensor, cell: nn.GRUCell) -> th.Tensor:
+    """``torch.nn.GRUCell``'s equations with its parameters, its two GEMMs written as ``F.linear`` so that autocast runs
+    them in bfloat16 (``GRUCell``'s own op is not autocast on CPU); the gates are computed in float32:
+
+    r = sigmoid(W_ir x + b_ir + W_hr h + b_hr), z = sigmoid(W_iz x + b_iz + W_hz h + b_hz),
+    n = tanh(W_in x + b_in + r * (W_hn h + b_hn)), h' = (1 - z) * n + z * h = (h - n) * z + n.
+
+    :param inputs: x, (B, input_size)
+    :param hidden: h, (B, hidden_size), float32
+    :param cell: the ``GRUCell`` whose ``weight_ih``, ``bias_ih``, ``weight_hh``, ``bias_hh`` are used
+    :return: h', (B, hidden_size), float32 (the dtype of ``hidden``)
+    """
+    return gru_update(F.linear(inputs, cell.weight_ih, cell.bias_ih), F.linear(hidden, cell.weight_hh, cell.bias_hh), hidden)
+
+
+def gru_update(input_gates: th.Tensor, hidden_gates: th.Tensor, hidden: th.Tensor) -> th.Tensor:
+    """The gates and new state of ``torch.nn.GRUCell`` from its two projections (:func:`gru_cell`), in float32.
+
+    :param input_gates: W_ih x + b_ih, (B, 3 hidden_size), gates in the order r, z, n (float32 or bfloat16)
+    :param hidden_gates: W_hh h + b_hh, (B, 3 hidden_size)
+    :param hidden: h, (B, hidden_size), float32
+    :return: h', (B, hidden_size), float32
+    """
+    input_r, input_z, input_n = input_gates.float().chunk(3, dim=-1)
+    hidden_r, hidden_z, hidden_n = hidden_gates.float().chunk(3, dim=-1)
+    reset = th.sigmoid(input_r + hidden_r)
+    update = th.sigmoid(input_z + hidden_z)
+    new = th.tanh(input_n + reset * hidden_n)
+    return (hidden - new) * update + new
+
+
+class SequenceLinear:
+    """y_t = x_t W^T + b (+ c_t) applied at every step t of a recurrence, with the weight gradient computed once per
+    sequence: sum_t g_t^T x_t as one GEMM over all T * B rows after the backward pass through time, as cuDNN's RNNs do,
+    instead of one small GEMM and one accumulation of a full-size gradient per step. The input gradients g_t W stay per
+    step (they are the recurrence). Under autocast the weight and bias are cast once to the autocast dtype (the GEMMs
+    then run in it; the summed weight gradient is rounded once to it, not per step).
+
+    Without gradients (``torch.no_grad`` or a weight that does not require them) it is the plain GEMM. A backward pass
+    must reach the weight (``loss.backward()``, or ``torch.autograd.grad`` with respect to the parameters); one that
+    asks only for other tensors' gradients would leave its per-step pairs behind for the next pass of a retained graph.
+
+    :param weight: W, (N, K), a parameter or a differentiable view of one (a slice of a GRU's W_ih)
+    :param bias: b, (N,), or None
+    :param dtype: the GEMMs' dtype (the autocast dtype, or the weight's)
+    :param deferred: sum the weight gradient once per sequence; ``False``: autograd's per-step weight gradients
+    """
+
+    def __init__(self, weight: th.Tensor, bias: th.Tensor | None, dtype: th.dtype, deferred: bool = True):
+        self.dtype = dtype
+        self.pairs: list[tuple[th.Tensor, th.Tensor]] = []  # (g_t, x_t), filled by the backward pass
+        requires_grad = weight.requires_grad or (bias is not None and bias.requires_grad)
+        self.tracked = deferred and th.is_grad_enabled() and requires_grad
+        # cast once (differentiably when not tracked: autograd then sums the per-step weight gradients itself)
+        self.weight = (weight.detach() if self.tracked else weight).to(dtype)
+        self.bias = None if bias is None else (bias.detach() if self.tracked else bias).to(dtype)
+        # a scalar whose backward node runs after every step's (it feeds all of them): the weight gradient is summed there
+        self.token = _SequenceWeightGradient.apply(self, weight, bias) if self.tracked else None
+
+    def __call__(self, inputs: th.Tensor, added: th.Tensor | None = None) -> th.Tensor:
+        """x_t W^T + b + c_t for one step: ``inputs`` x_t (B, K), ``added`` c_t (B, N) or None; (B, N) in ``dtype``."""
+        if not self.tracked:
+            return _affine(inputs.to(self.dtype), self.weight, self.bias, added)
+        return _SequenceLinearStep.apply(inputs, added, self.token, self)
+
+
+def _affine(inputs: th.Tensor, weight: th.Tensor, bias: th.Tensor | None, added: th.Tensor | None) -> th.Tensor:
+    if added is not None:
+        return th.addmm(added.to(inputs.dtype) if bias is None else added.to(inputs.dtype) + bias, inputs, weight.t())
+    return th.mm(inputs, weight.t()) if bias is None else th.addmm(bias, inputs, weight.t())
+
+
+class _SequenceLinearStep(th.autograd.Function):
+    @staticmethod
+    def forward(ctx: Any, inputs: th.Tensor, added: th.Tensor | None, token: th.Tensor, linear: SequenceLinear) -> th.Tensor:
+        cast = inputs.to(linear.dtype)
+        ctx.save_for_backward(cast)
+        ctx.linear, ctx.input_dtype = linear, inputs.dtype
+        ctx.added_dtype = None if added is None else added.dtype
+        return _affine(cast, linear.weight, linear.bias, added)
+
+    @staticmethod
+    def backward(ctx: Any, grad: th.Tensor) -> tuple[th.Tensor | None, ...]:
+        (cast,) = ctx.saved_tensors
+        linear: SequenceLinear = ctx.linear
+        grad = grad.to(linear.dtype)
+        linear.pairs.append((grad, cast))
+        grad_inputs = th.mm(grad, linear.weight).to(ctx.input_dtype) if ctx.needs_input_grad[0] else None
+        grad_added = grad.to(ctx.added_dtype) if ctx.added_dtype is not None and ctx.needs_input_grad[1] else None
+        return grad_inputs, grad_added, th.zeros((), dtype=th.float32, device=grad.device), None
+
+
+class _SequenceWeightGradient(th.autograd.Function):
+    @staticmethod
+    def forward(ctx: Any, linear: SequenceLinear, weight: th.Tensor, bias: th.Tensor | None) -> th.Tensor:
+        ctx.linear = linear
+        ctx.weight_dtype = weight.dtype
+        ctx.has_bias = bias is not None
+        return th.zeros((), dtype=th.float32, device=weight.device)
+
+    @staticmethod
+    def backward(ctx: Any, _: th.Tensor) -> tuple[th.Tensor | None, ...]:
+        linear: SequenceLinear = ctx.linear
+        if not linear.pairs:
+            return None, None, None
+        grads = th.cat([g for g, _ in linear.pairs])  # (T * B, N), steps in any order, rows matched with the inputs
+        inputs = th.cat([x for _, x in linear.pairs])  # (T * B, K)
+        linear.pairs = []  # (a retained graph's next backward pass fills them again)
+        grad_weight = th.mm(grads.t(), inputs).to(ctx.weight_dtype) if ctx.needs_input_grad[1] else None
+        grad_bias = grads.sum(0, dtype=th.float32).to(ctx.weight_dtype) if ctx.has_bias and ctx.needs_input_grad[2] else None
+        return None, grad_weight, grad_bias

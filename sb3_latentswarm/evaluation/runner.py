@@ -40,6 +40,7 @@ from sb3_latentswarm.evaluation.diagnostics import EPISODE_COLUMNS, EpisodeDiagn
 from sb3_latentswarm.evaluation.paper import PAPER_P_FAILS
 from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
 from sb3_latentswarm.utils.checks import check_bool, check_int
+from sb3_latentswarm.utils.seeding import action_noise_rng
 
 __all__ = [
     "EPISODE_COLUMNS",
@@ -131,9 +132,6 @@ def _check_geometry(model: Any, policy: LatentSwarmPolicy | None, config: SwarmC
 
 
 # ---------------------------------------------------------------------------------------------- rollouts
-_NOISE_STREAM = 0x5EED  # separates the action-noise stream of episode seed s from the env's stream of s
-
-
 def _run_episodes(
     actor: LatentActor | PredictActor,
     config: SwarmConfig,
@@ -172,7 +170,7 @@ def _run_episodes(
         episode_starts.reshape(n_envs, n)[swarms] = 1.0
         if stochastic_noise:
             for swarm, k in zip(swarms.tolist(), episodes.tolist()):
-                noise_rngs[swarm] = np.random.default_rng([seed + k, _NOISE_STREAM])
+                noise_rngs[swarm] = action_noise_rng(seed + k)
         curves[episodes, 0] = 100.0 * core.coverage[swarms]
 
     start(np.arange(n_envs))

@@ -1,4 +1,5 @@
-"""Env seeds of training seeds: one rule for ``sweep`` and ``train --seeds`` (a light module: no torch, no SB3).
+"""Env seeds of training seeds: one rule for ``sweep`` and ``train --seeds``; the action-noise stream of an evaluation
+episode (a light module: no torch, no SB3).
 
 A training seed ``k`` trains ``n_envs`` env copies. Copy ``c`` of a run whose first copy has seed ``base`` is seeded
 with ``base + c`` (:meth:`~sb3_latentswarm.presets.Preset.make_env`). With ``base = k`` (what ``train --seed k``
@@ -8,9 +9,14 @@ does), neighbouring training seeds share ``n_envs - 1`` copies: copy 1 of seed 0
 
 from __future__ import annotations
 
+import numpy as np
+
 from sb3_latentswarm.utils.checks import check_int
 
-__all__ = ["WARM_START_SEED_STRIDE", "training_env_seed", "warm_start_seed"]
+__all__ = ["ACTION_NOISE_STREAM", "WARM_START_SEED_STRIDE", "action_noise_rng", "training_env_seed", "warm_start_seed"]
+
+ACTION_NOISE_STREAM = 0x5EED
+"""Separates the action-noise stream of episode seed s from the env's stream of s (:func:`action_noise_rng`)."""
 
 WARM_START_SEED_STRIDE = 500_000
 """Seed offset of a continued run (``sweep --warm-start``): the ``d``-th continuation of a run seeds its model and its env
@@ -41,3 +47,10 @@ def warm_start_seed(seed: int, depth: int) -> int:
     :raises TypeError, ValueError: ``seed`` or ``depth`` not an int >= 0
     """
     return check_int("seed", seed, low=0) + check_int("depth", depth, low=0) * WARM_START_SEED_STRIDE
+
+
+def action_noise_rng(episode_seed: int) -> np.random.Generator:
+    """The generator of a sampled episode's action noise: ``default_rng([episode_seed, ACTION_NOISE_STREAM])``, one
+    ``(N, action_dim)`` standard-normal draw per step, row i for UAV i (the evaluation runner's protocol; a UAV process
+    draws the same rows on its own)."""
+    return np.random.default_rng([episode_seed, ACTION_NOISE_STREAM])

@@ -93,3 +93,16 @@ def test_the_example_has_a_help():
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert "--kill-uav" in result.stdout and "--deadline" in result.stdout
+
+
+@pytest.mark.slow
+def test_the_example_flies_a_saved_model_and_loses_a_uav(model, tmp_path):
+    model.save(tmp_path / "model.zip")
+    command = [sys.executable, str(ROOT / "examples" / "deploy_processes.py"), "--model", str(tmp_path / "model.zip"),
+               "--episodes", "2", "--kill-uav", "2", "--kill-step", "3", "--deadline", "2", "--lost-after", "1",
+               "--out", str(tmp_path / "out")]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    table = (tmp_path / "out" / "episodes.csv").read_text().splitlines()
+    assert len(table) == 3 and table[1].endswith(",12,{2: 3}") and table[2].endswith(",15,{2: 0}")  # lost from the start
+    assert (tmp_path / "out" / "uav.onnx").is_file() and "simulator step exchange" in result.stdout

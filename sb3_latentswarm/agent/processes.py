@@ -325,6 +325,9 @@ class Simulator:
         seed = check_int("seed", seed, low=0)
         check_bool("deterministic", deterministic)
         core, swarm, n, d = self.core, self.swarm, self.config.n_agents, self.swarm.spec.message_dim
+        if kill_at is not None:
+            kill_at = (check_int("kill_at[0] (the UAV)", kill_at[0], 0, n - 1),
+                       check_int("kill_at[1] (the step)", kill_at[1], 0))
         episode = self._episode
         self._episode += 1
         core.reset(seeds=[seed])

@@ -1,6 +1,9 @@
 """UAVs as processes (sb3_latentswarm.agent.processes): three UAV processes on 127.0.0.1 fly the in-process episode
-exactly, a killed UAV leaves a finished episode with its dropout recorded, a taken port is a clear error."""
+exactly, a late reply is lost and the UAV answers again, a killed UAV leaves a finished episode with its dropout
+recorded, a taken port is a clear error."""
 
+import os
+import signal
 import socket
 import subprocess
 import sys
@@ -106,3 +109,32 @@ def test_the_example_flies_a_saved_model_and_loses_a_uav(model, tmp_path):
     table = (tmp_path / "out" / "episodes.csv").read_text().splitlines()
     assert len(table) == 3 and table[1].endswith(",12,{2: 3}") and table[2].endswith(",15,{2: 0}")  # lost from the start
     assert (tmp_path / "out" / "uav.onnx").is_file() and "simulator step exchange" in result.stdout
+
+
+def test_a_late_reply_is_lost_and_the_uav_answers_again(onnx_path):
+    from sb3_latentswarm.agent.processes import StepInput
+    from sb3_latentswarm.envs.batched_core import SwarmBatch
+
+    core = SwarmBatch(CONFIG, 1)
+    core.reset(seeds=[HELD_OUT_SEED])
+    everyone = {0, 1, 2}
+    with ProcessSwarm(onnx_path, CONFIG.n_agents) as swarm:
+        nothing = np.zeros((0, swarm.spec.message_dim), np.float32)
+        inputs = [StepInput(core.local_obs[0, i], core.proprio[0, i], [], nothing) for i in everyone]
+        assert set(swarm.reset(0, HELD_OUT_SEED, True, everyone, DEADLINE)) == everyone
+        pid = swarm.procs[1].pid
+        os.kill(pid, signal.SIGSTOP)  # UAV 1 stalls past the deadline
+        try:
+            late = swarm.step(0, 0, inputs, everyone, deadline=0.5)
+        finally:
+            os.kill(pid, signal.SIGCONT)
+        assert set(late) == {0, 2}
+        # its reply to step 0 arrives now and is dropped as stale; its reply to step 1 counts
+        replies = swarm.step(0, 1, inputs, everyone, DEADLINE)
+        assert set(replies) == everyone
+    node = in_process(onnx_path).swarm.nodes[1]  # UAV 1 stepped twice (the late step counts in its own state)
+    node.reset(HELD_OUT_SEED, 3, True)
+    for t in (0, 1):
+        action, message, _ = node.step(t, inputs[1].local_obs, inputs[1].proprio, nothing)
+    np.testing.assert_array_equal(replies[1].action, action)
+    np.testing.assert_array_equal(replies[1].message, message)

@@ -15,7 +15,6 @@ import dataclasses
 import hashlib
 import json
 import sys
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -117,9 +116,6 @@ def _print_table(title: str, markdown: str) -> None:
     print(f"\n### {title}\n")
     print(markdown)
 
-
-CHECKPOINTS = "checkpoints"
-"""Subfolder of ``train --output`` holding the run's checkpoints (:mod:`sb3_latentswarm.runs.checkpoints`)."""
 
 RESUME_SETTINGS = ("preset", "set", "seed", "env_seed", "total_timesteps", "backend")
 """The ``train`` options a checkpoint stores and ``--resume`` compares (given ones must match, except a larger
@@ -230,25 +226,16 @@ def _checked_training_preset(args: argparse.Namespace, n_seeds: int | None = Non
 
 
 def command_train(args: argparse.Namespace) -> int:
-    """``train``: validate every setting, probe the output folder, train with checkpoints, save ``model.zip``.
+    """``train``: validate every setting, probe the output folder, train with checkpoints, save ``model.zip``: one
+    :class:`~sb3_latentswarm.runs.run.Run`.
 
     ``--resume`` continues the newest checkpoint in ``--output``; SIGINT / SIGTERM write a checkpoint and exit with
     128 + the signal number (see ``docs/long_runs.md``). ``--seeds K`` > 1 (or an ``--output`` holding a
     ``seeds.json``) runs this command once per seed, in processes of their own (:func:`_command_train_seeds`).
     """
-    from sb3_latentswarm.callbacks import RolloutProgressBarCallback, whole_rollouts
-    from sb3_latentswarm.runs.checkpoints import (
-        StopOnSignal,
-        SwarmCheckpointCallback,
-        configure_run_logger,
-        default_save_freq,
-        estimate_checkpoint_bytes,
-        latest_checkpoint,
-        load_checkpoint,
-        read_checkpoint_state,
-    )
+    from sb3_latentswarm.runs.checkpoints import default_save_freq
+    from sb3_latentswarm.runs.run import CheckpointWriteError, Run, RunSpec, RunStopped
     from sb3_latentswarm.runs.train_seeds import SEEDS_RECORD
-    from sb3_latentswarm.utils.atomic import probe_writable, write_json
 
     output = Path(args.output or f"runs/{args.preset or 'demo'}")
     args.output = str(output)
@@ -256,139 +243,138 @@ def command_train(args: argparse.Namespace) -> int:
         raise ValueError(f"--output {output} is an existing file, not a folder")
     if (args.seeds or 1) > 1 or (output / SEEDS_RECORD).exists():
         return _command_train_seeds(args, output)
-    checkpoint_dir = output / CHECKPOINTS
-    latest = latest_checkpoint(checkpoint_dir)
-    state: dict[str, Any] = {}
-    if args.resume:
-        if latest is None:
-            raise ValueError(f"--resume: no checkpoint in {checkpoint_dir}; train without --resume to start a run there")
-        state = read_checkpoint_state(latest)
-    elif latest is not None:
-        raise ValueError(
-            f"--output {output} holds the checkpoints of an earlier run (newest: {latest}); continue it with --resume, "
-            f"or pass another --output"
-        )
-    elif any((output / f"{name}.csv").exists() for name in EVALUATION_TABLES):
-        raise ValueError(
-            f"--output {output} holds the evaluation tables of an earlier model; a new model there would sit beside "
-            f"them. Pass another --output"
-        )
-    settings = _train_settings(args, state.get("settings"))
-    args.preset, args.set, args.seed, args.backend = settings["preset"], settings["set"], settings["seed"], settings["backend"]
-    args.env_seed = settings["env_seed"]
-    preset = _checked_training_preset(args)
-    total = settings["total_timesteps"] or preset.total_timesteps
-    settings["total_timesteps"] = total
-    per_update = preset.agent_steps_per_update
-    stored = state.get("settings") or {}
-    if args.save_freq is None:  # the run's own frequency on --resume (not compared: it changes no result)
-        args.save_freq = stored.get("save_freq", default_save_freq(total, per_update))
-    if args.keep_checkpoints is None:
-        args.keep_checkpoints = stored.get("keep_checkpoints", 3)
-    save_freq = args.save_freq
-
-    # every setting is checked here, by building the env and the model, before any folder is created
-    env = preset.make_env(args.env_seed, backend=args.backend)
-    tensorboard = args.tensorboard if args.tensorboard is not None else (state.get("settings") or {}).get("tensorboard")
-    if state and latest is not None:
-        model = load_checkpoint(latest, env=env, device=args.device, tensorboard_log=tensorboard)
-        model.verbose = args.verbose
-    else:
-        model = preset.make_model(env, seed=args.seed, device=args.device, verbose=args.verbose, tensorboard_log=tensorboard)
-    tb_log_name = f"latentswarm_{preset.name}"
-    tensorboard_run = (state.get("settings") or {}).get("tensorboard_run")
-    if tensorboard is not None and tensorboard_run is None:
-        from stable_baselines3.common.utils import get_latest_run_id
-
-        tensorboard_run = str(Path(tensorboard) / f"{tb_log_name}_{get_latest_run_id(tensorboard, tb_log_name) + 1}")
-    room = 2 * estimate_checkpoint_bytes(model)  # a new checkpoint is written before the oldest is deleted
-    probe_writable(output, room_bytes=room)
-    if tensorboard_run is not None:
-        probe_writable(tensorboard_run)
-    run_settings = {
-        **settings,
-        "tensorboard": tensorboard,
-        "tensorboard_run": tensorboard_run,
-        "save_freq": save_freq,
-        "keep_checkpoints": args.keep_checkpoints,
-    }
-
-    resume_step = int(state["num_timesteps"]) if state else None
-    model.set_logger(configure_run_logger(output, args.verbose, tensorboard_run, resume_step))
-    remaining = total - model.num_timesteps
-    per_rollout = model.n_steps * env.num_envs
-    # learn() collects whole rollouts: the run ends at the budget rounded up to them (the progress bar's total)
-    end = model.num_timesteps + (whole_rollouts(remaining, per_rollout) if remaining > 0 else 0)
-    rounded = f" ({total:,} rounded up to whole rollouts of {per_rollout:,})" if end != total else ""
-    copies = f"env copies {args.env_seed}..{args.env_seed + preset.n_envs - 1}"
-    if state:
-        print(f"Resuming {latest} at {model.num_timesteps:,} of {end:,} agent-steps{rounded}, seed {args.seed} ({copies})")
-        earlier = stored.get("total_timesteps")
-        if earlier is not None and total > earlier:
-            print(f"The run's budget grows from {earlier:,} to {total:,} agent-steps (--total-timesteps)")
-        if remaining <= 0:
-            print(
-                f"The run has trained its {total:,} agent-steps: nothing to train (give --total-timesteps N, N > "
-                f"{model.num_timesteps:,}, to train on); model.zip is written again from the newest checkpoint"
+    with Run(output) as run:
+        if args.resume and run.start is None:
+            raise ValueError(f"--resume: no checkpoint in {run.checkpoint_dir}; train without --resume to start a run there")
+        if not args.resume and run.start is not None:
+            raise ValueError(
+                f"--output {output} holds the checkpoints of an earlier run (newest: {run.start}); continue it with "
+                f"--resume, or pass another --output"
             )
-    else:
-        overrides = f" with {' '.join(args.set)}" if args.set else ""
-        print(
-            f"Training preset '{preset.name}'{overrides} for {end:,} agent-steps{rounded}: {preset.n_envs} swarms of "
-            f"{preset.config.n_agents}, n_steps {model.n_steps}, {end // per_rollout} updates, seed {args.seed} "
-            f"({copies})"
+        if run.start is None and any((output / f"{name}.csv").exists() for name in EVALUATION_TABLES):
+            raise ValueError(
+                f"--output {output} holds the evaluation tables of an earlier model; a new model there would sit beside "
+                f"them. Pass another --output"
+            )
+        stored: dict[str, Any] = (run.state or {}).get("settings") or {}
+        settings = _train_settings(args, stored)
+        args.preset, args.set, args.seed = settings["preset"], settings["set"], settings["seed"]
+        args.backend, args.env_seed = settings["backend"], settings["env_seed"]
+        preset = _checked_training_preset(args)
+        total = settings["total_timesteps"] = settings["total_timesteps"] or preset.total_timesteps
+        if args.save_freq is None:  # the run's own frequency on --resume (not compared: it changes no result)
+            args.save_freq = stored.get("save_freq", default_save_freq(total, preset.agent_steps_per_update))
+        if args.keep_checkpoints is None:
+            args.keep_checkpoints = stored.get("keep_checkpoints", 3)
+        tensorboard = args.tensorboard if args.tensorboard is not None else stored.get("tensorboard")
+        tensorboard_run = stored.get("tensorboard_run")
+        if tensorboard is not None and tensorboard_run is None:
+            from stable_baselines3.common.utils import get_latest_run_id
+
+            name = f"latentswarm_{preset.name}"
+            tensorboard_run = str(Path(tensorboard) / f"{name}_{get_latest_run_id(tensorboard, name) + 1}")
+        spec = RunSpec(
+            preset,
+            output,
+            seed=args.seed,
+            env_seed=args.env_seed,
+            total_timesteps=total,
+            backend=args.backend,
+            device=args.device,
+            resume=args.resume,
+            save_freq=args.save_freq,
+            keep_checkpoints=args.keep_checkpoints,
+            settings={
+                **settings,
+                "tensorboard": tensorboard,
+                "tensorboard_run": tensorboard_run,
+                "save_freq": args.save_freq,
+                "keep_checkpoints": args.keep_checkpoints,
+            },
+            tensorboard=tensorboard,
+            tensorboard_run=tensorboard_run,
+            verbose=args.verbose,
         )
-        rate = model.learning_rate
-        rate_text = f"{rate:g}" if isinstance(rate, (int, float)) else repr(rate)
-        epochs = f"{model.n_epochs} epoch{'s' if model.n_epochs != 1 else ''}"
-        print(f"PPO: learning rate {rate_text}, minibatch {model.batch_size:,} agent-steps, {epochs}")
-    print(f"Checkpoints every {save_freq:,} agent-steps in {checkpoint_dir} (keeping {args.keep_checkpoints})")
-    print(f"If stopped, resume with: {_resume_command(output)}")  # now: a run killed by kill -9 prints nothing at its end
-    start = time.perf_counter()
-    with StopOnSignal() as stop:
-        checkpoints = SwarmCheckpointCallback(
-            save_freq, checkpoint_dir, keep=args.keep_checkpoints, settings=run_settings, stop=stop, verbose=args.verbose
-        )
-        bar = [RolloutProgressBarCallback()] if not args.no_progress and sys.stderr.isatty() else []
         try:
-            if remaining > 0:
-                model.learn(
-                    total_timesteps=remaining,
-                    callback=[checkpoints, *bar],
-                    tb_log_name=tb_log_name,
-                    reset_num_timesteps=not state,
-                )
-        except KeyboardInterrupt:  # a second signal: no clean stop, the last captured state is still written
-            checkpoints.stopped = True
-            checkpoints.write()
-        except OSError as error:  # a checkpoint could not be written (full disk, size limit): the earlier ones are intact
+            run.train(spec, _TrainCommandHooks(args, preset, stored))  # a RunHooks
+        except CheckpointWriteError as error:
             print(
-                f"sb3-latentswarm train: error: could not write a checkpoint: {error}. The earlier checkpoints in "
-                f"{checkpoint_dir} are intact; free some space and resume with:\n  {_resume_command(output)}",
+                f"sb3-latentswarm train: error: {error}; free some space and resume with:\n  {_resume_command(output)}",
                 file=sys.stderr,
             )
             return 1
-        finally:
-            model.logger.close()
-    train_seconds = time.perf_counter() - start
-    if checkpoints.stopped:
-        where = checkpoints.last_path or latest_checkpoint(checkpoint_dir)
-        print(
-            f"\nStopped by {stop.name or 'a second signal'} after {train_seconds:.0f} s; checkpoint {where} "
-            f"(the rollout in progress is not kept). Resume with:\n  {_resume_command(output)}",
-            file=sys.stderr,
-        )
-        return stop.exit_code if stop.signum else 130
-    model_path = output / "model.zip"
-    model.save(model_path)
-    write_json(output / "config.json", preset.config.to_dict())
-    print(f"Trained in {train_seconds:.0f} s; saved {model_path}")
-    if stop.signum is not None:  # the signal came during the last update: the model is complete, skip the rest
-        print(f"Stopped by {stop.name} after the last update", file=sys.stderr)
-        return stop.exit_code
-    if args.evaluate:
-        _evaluate_and_print(model, preset, args, output, p_fail_sweep=False, baselines=True, model_path=model_path)
+        except RunStopped as stopped:
+            if stopped.saved:
+                print(f"Stopped by {stopped.name} after the last update", file=sys.stderr)
+            else:
+                print(
+                    f"\nStopped by {stopped.name or 'a second signal'} after {stopped.seconds:.0f} s; checkpoint "
+                    f"{stopped.checkpoint} (the rollout in progress is not kept). Resume with:\n  {_resume_command(output)}",
+                    file=sys.stderr,
+                )
+            return stopped.exit_code
     return 0
+
+
+class _TrainCommandHooks:
+    """What ``train`` says while its run goes (:class:`~sb3_latentswarm.runs.run.RunHooks`), its progress bar and its
+    ``--evaluate``."""
+
+    def __init__(self, args: argparse.Namespace, preset: Preset, stored: dict[str, Any]):
+        self.args, self.preset, self.stored = args, preset, stored
+
+    def callbacks(self) -> list[Any]:
+        from sb3_latentswarm.callbacks import RolloutProgressBarCallback
+
+        return [RolloutProgressBarCallback()] if not self.args.no_progress and sys.stderr.isatty() else []
+
+    def extra_state(self) -> dict[str, Any]:
+        return {}
+
+    def started(self, run: Any) -> None:
+        from sb3_latentswarm.callbacks import whole_rollouts
+
+        args, preset, model, total, remaining = self.args, self.preset, run.model, run.budget, run.remaining
+        per_rollout = model.n_steps * run.env.num_envs
+        # learn() collects whole rollouts: the run ends at the budget rounded up to them (the progress bar's total)
+        end = model.num_timesteps + (whole_rollouts(remaining, per_rollout) if remaining > 0 else 0)
+        rounded = f" ({total:,} rounded up to whole rollouts of {per_rollout:,})" if end != total else ""
+        copies = f"env copies {args.env_seed}..{args.env_seed + preset.n_envs - 1}"
+        if run.resumed_from is not None:
+            at = f"{model.num_timesteps:,} of {end:,} agent-steps{rounded}"
+            print(f"Resuming {run.start} at {at}, seed {args.seed} ({copies})")
+            earlier = self.stored.get("total_timesteps")
+            if earlier is not None and total > earlier:
+                print(f"The run's budget grows from {earlier:,} to {total:,} agent-steps (--total-timesteps)")
+            if remaining <= 0:
+                print(
+                    f"The run has trained its {total:,} agent-steps: nothing to train (give --total-timesteps N, N > "
+                    f"{model.num_timesteps:,}, to train on); model.zip is written again from the newest checkpoint"
+                )
+        else:
+            overrides = f" with {' '.join(args.set)}" if args.set else ""
+            print(
+                f"Training preset '{preset.name}'{overrides} for {end:,} agent-steps{rounded}: {preset.n_envs} swarms of "
+                f"{preset.config.n_agents}, n_steps {model.n_steps}, {end // per_rollout} updates, seed {args.seed} "
+                f"({copies})"
+            )
+            rate = model.learning_rate
+            rate_text = f"{rate:g}" if isinstance(rate, (int, float)) else repr(rate)
+            epochs = f"{model.n_epochs} epoch{'s' if model.n_epochs != 1 else ''}"
+            print(f"PPO: learning rate {rate_text}, minibatch {model.batch_size:,} agent-steps, {epochs}")
+        print(f"Checkpoints every {args.save_freq:,} agent-steps in {run.checkpoint_dir} (keeping {args.keep_checkpoints})")
+        # now: a run killed by kill -9 prints nothing at its end
+        print(f"If stopped, resume with: {_resume_command(run.output)}")
+
+    def saved(self, run: Any, result: Any) -> None:
+        print(f"Trained in {result.train_seconds:.0f} s; saved {result.model_path}")
+
+    def evaluate(self, run: Any, result: Any) -> None:
+        if self.args.evaluate:
+            _evaluate_and_print(
+                result.model, self.preset, self.args, run.output, p_fail_sweep=False, baselines=True,
+                model_path=result.model_path,
+            )
 
 
 SEED_OPTIONS = ("evaluate", "eval_seed", "stochastic", "tensorboard", "save_freq", "keep_checkpoints")
@@ -451,7 +437,7 @@ def _command_train_seeds(args: argparse.Namespace, output: Path) -> int:
 
     :return: 0; 1 when a seed failed; 128 + the signal's number when stopped by SIGINT / SIGTERM / SIGHUP
     """
-    from sb3_latentswarm.runs.checkpoints import estimate_checkpoint_bytes, latest_checkpoint
+    from sb3_latentswarm.runs.run import find_start, required_room
     from sb3_latentswarm.runs.train_seeds import SEEDS_RECORD, SeedRun, run_seed_processes, seed_folder, seed_state
     from sb3_latentswarm.utils.atomic import probe_writable, write_json
     from sb3_latentswarm.utils.threads import available_cores
@@ -472,7 +458,7 @@ def _command_train_seeds(args: argparse.Namespace, output: Path) -> int:
             )
     elif args.resume:
         raise ValueError(f"--resume --seeds: no run of train --seeds in {output} (no {SEEDS_RECORD}); train without --resume")
-    elif latest_checkpoint(output / CHECKPOINTS) is not None or (output / "model.zip").exists():
+    elif find_start(output) is not None or (output / "model.zip").exists():
         raise ValueError(
             f"--output {output} holds a single-seed run (model.zip or checkpoints/); train --seeds needs a folder of its "
             f"own: pass another --output"
@@ -524,7 +510,7 @@ def _command_train_seeds(args: argparse.Namespace, output: Path) -> int:
         env = preset.make_env(env_seeds[seeds.start], backend=args.backend)
         try:
             model = preset.make_model(env, seed=settings["seed"], device=args.device, verbose=0)
-            room = 2 * estimate_checkpoint_bytes(model) * len(to_run)
+            room = required_room(model) * len(to_run)
             del model
         finally:
             env.close()

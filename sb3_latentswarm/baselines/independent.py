@@ -82,46 +82,60 @@ class IndependentRecurrentPPO:
         return cls(RecurrentPPO.load(path, device=device))
 
 
-def train_independent_ppo(
+def independent_ppo(
     vec_env: VecEnv,
-    total_timesteps: int,
     seed: int = 0,
     hidden: int = 64,
     n_steps: int = 128,
     batch_size: int = 512,
+    continue_from: str | Path | None = None,
+    **kwargs: Any,
+) -> RecurrentPPO:
+    """sb3-contrib ``RecurrentPPO("MultiInputLstmPolicy")`` on each UAV's own observation, ready to ``learn``.
+
+    :param vec_env: a swarm VecEnv from :func:`sb3_latentswarm.make_vec_env`
+    :param hidden: LSTM hidden size and MLP width
+    :param kwargs: other ``RecurrentPPO`` arguments; ``policy_kwargs`` are added to the LSTM sizes above
+        (:meth:`Preset.independent_ppo_kwargs <sb3_latentswarm.presets.Preset.independent_ppo_kwargs>` gives a
+        preset's PPO settings)
+    :param continue_from: a model saved by :meth:`IndependentRecurrentPPO.save` to continue (weights, optimizer
+        state, agent-step count; SB3's ``load`` then ``learn(reset_num_timesteps=False)``) instead of a new model;
+        ``seed`` then reseeds its random numbers, and the other arguments are the saved ones
+    """
+    if continue_from is not None:
+        model = IndependentRecurrentPPO.load(continue_from, device=kwargs.get("device", "auto")).model
+        model.set_env(OwnObservationVecEnv(vec_env))
+        model.set_random_seed(seed)
+        return model
+    policy_kwargs = dict(lstm_hidden_size=hidden, net_arch=[hidden], **kwargs.pop("policy_kwargs", {}))
+    settings: dict[str, Any] = dict(n_steps=n_steps, batch_size=batch_size, ent_coef=0.01, seed=seed)
+    return RecurrentPPO(
+        "MultiInputLstmPolicy", OwnObservationVecEnv(vec_env), **{**settings, **kwargs}, policy_kwargs=policy_kwargs
+    )
+
+
+def train_independent_ppo(
+    vec_env: VecEnv,
+    total_timesteps: int,
+    seed: int = 0,
     callback: MaybeCallback = None,
     continue_from: str | Path | None = None,
     **kwargs: Any,
 ) -> IndependentRecurrentPPO:
-    """Train sb3-contrib ``RecurrentPPO("MultiInputLstmPolicy")`` on each UAV's own observation.
+    """Train :func:`independent_ppo` (new, or ``continue_from``'s model) up to ``total_timesteps`` agent-steps.
 
-    :param vec_env: a swarm VecEnv from :func:`sb3_latentswarm.make_vec_env`
     :param total_timesteps: budget in agent-steps
-    :param hidden: LSTM hidden size and MLP width
     :param callback: SB3 callback(s) of ``learn`` (e.g. progress reports)
-    :param kwargs: other ``RecurrentPPO`` arguments; ``policy_kwargs`` are added to the LSTM sizes above
-        (:meth:`Preset.independent_ppo_kwargs <sb3_latentswarm.presets.Preset.independent_ppo_kwargs>` gives a
-        preset's PPO settings)
-    :param continue_from: a model saved by :meth:`IndependentRecurrentPPO.save` to train on (weights, optimizer
-        state, agent-step count; SB3's ``load`` + ``learn(reset_num_timesteps=False)``) up to ``total_timesteps``
-        instead of a new model; ``seed`` then reseeds its random numbers, and the other arguments are the saved ones
+    :param kwargs: the other arguments of :func:`independent_ppo` (``hidden``, ``n_steps``, RecurrentPPO's)
     :raise ValueError: for a ``continue_from`` model that has already trained ``total_timesteps`` or more
     """
-    if continue_from is not None:
-        model = IndependentRecurrentPPO.load(continue_from, device=kwargs.get("device", "auto")).model
-        if model.num_timesteps >= total_timesteps:
-            raise ValueError(
-                f"continue_from {continue_from} has trained {model.num_timesteps:,} agent-steps, not fewer than "
-                f"total_timesteps={total_timesteps:,}"
-            )
-        model.set_env(OwnObservationVecEnv(vec_env))
-        model.set_random_seed(seed)
-        model.learn(total_timesteps=total_timesteps - model.num_timesteps, callback=callback, reset_num_timesteps=False)
-        return IndependentRecurrentPPO(model)
-    policy_kwargs = dict(lstm_hidden_size=hidden, net_arch=[hidden], **kwargs.pop("policy_kwargs", {}))
-    settings: dict[str, Any] = dict(n_steps=n_steps, batch_size=batch_size, ent_coef=0.01, seed=seed)
-    model = RecurrentPPO(
-        "MultiInputLstmPolicy", OwnObservationVecEnv(vec_env), **{**settings, **kwargs}, policy_kwargs=policy_kwargs
+    model = independent_ppo(vec_env, seed=seed, continue_from=continue_from, **kwargs)
+    if continue_from is not None and model.num_timesteps >= total_timesteps:
+        raise ValueError(
+            f"continue_from {continue_from} has trained {model.num_timesteps:,} agent-steps, not fewer than "
+            f"total_timesteps={total_timesteps:,}"
+        )
+    model.learn(
+        total_timesteps=total_timesteps - model.num_timesteps, callback=callback, reset_num_timesteps=continue_from is None
     )
-    model.learn(total_timesteps=total_timesteps, callback=callback)
     return IndependentRecurrentPPO(model)

@@ -27,7 +27,8 @@ from stable_baselines3.common.callbacks import BaseCallback
 import sb3_latentswarm.evaluation as evaluation
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.presets import Preset, get_preset
-from sb3_latentswarm.utils.atomic import json_values
+from sb3_latentswarm.runs.run import RunHooks
+from sb3_latentswarm.utils.atomic import atomic_path, json_values, write_json
 from sb3_latentswarm.utils.seeding import training_env_seed, warm_start_seed
 
 VARIANTS = ("proposed", "no_comm", "zero_substitute", "hold_last", "independent")
@@ -207,10 +208,6 @@ def finished_trial_dirs(output: Path) -> list[Path]:
     return sorted(path.parent for path in paths if not path.parent.name.startswith("."))
 
 
-TRIAL_CHECKPOINTS = "checkpoints"
-"""Subfolder of a trial's work folder with its training checkpoints (:mod:`sb3_latentswarm.runs.checkpoints`)."""
-
-
 def _trial_identity(trial: dict[str, Any]) -> dict[str, Any]:
     """What a trial's checkpoint must match to be continued: its id, variant, seed, grid point and the sweep spec."""
     keys = ("trial_id", "variant", "train_seed", "grid_point", "spec")
@@ -232,6 +229,27 @@ def _warm_start_record(sweep: str, earlier_dir: Path, progress: TuneProgress) ->
     }
 
 
+class _TrialHooks(RunHooks):
+    """A trial's part of the run: Tune progress (kept in every checkpoint with the warm-start record) and the
+    evaluation cells, written as ``episodes.csv``."""
+
+    def __init__(self, progress: TuneProgress, warm_started: dict[str, Any] | None, evaluate: Callable[[Any], pd.DataFrame]):
+        self.progress, self.warm_started, self._evaluate = progress, warm_started, evaluate
+        self.episodes: pd.DataFrame | None = None
+        self.eval_seconds = 0.0
+
+    def callbacks(self) -> list[BaseCallback]:
+        return [self.progress]
+
+    def extra_state(self) -> dict[str, Any]:
+        return {"progress_rows": self.progress.rows, "warm_start": self.warm_started}
+
+    def evaluate(self, run: Any, result: Any) -> None:
+        start = time.perf_counter()
+        self.episodes = self._evaluate(result.model)
+        self.eval_seconds = time.perf_counter() - start
+
+
 def train_and_evaluate(
     trial: dict[str, Any],
     output: Path,
@@ -241,13 +259,14 @@ def train_and_evaluate(
     save_freq: int | None = None,
     keep_checkpoints: int = 2,
 ) -> dict[str, Any]:
-    """Train the trial's variant, save ``model.zip``, evaluate it, and write its raw results into ``output``.
+    """Train the trial's variant, save ``model.zip``, evaluate it, and write its raw results into ``output``: one
+    :class:`~sb3_latentswarm.runs.run.Run`, as ``sb3-latentswarm train`` is.
 
     LatentSwarmPPO variants (all but ``independent``) write checkpoints into ``output/checkpoints/`` while they
     train; with ``resume`` (the default) a rerun into the same ``output`` continues from the newest one, exactly where
     it stopped (same parameters as an uninterrupted trial, see :mod:`sb3_latentswarm.runs.checkpoints`). The
     ``independent`` RecurrentPPO baseline has no checkpoints and restarts from zero. SIGINT / SIGTERM (in the main
-    thread) write a checkpoint and raise :class:`~sb3_latentswarm.runs.checkpoints.TrainingInterrupted`.
+    thread) write a checkpoint and raise :class:`~sb3_latentswarm.runs.run.RunStopped`.
 
     :param trial: ``trial_id``, ``variant``, ``train_seed``, ``grid_point``, the sweep's
         :class:`~sb3_latentswarm.experiments.spec.SweepSpec` ``spec`` and ``commit``; see
@@ -263,98 +282,63 @@ def train_and_evaluate(
     :raise sb3_latentswarm.runs.checkpoints.CheckpointError: for a checkpoint of another trial in ``output``, or any
         checkpoint when ``resume`` is ``False``
     """
-    from sb3_latentswarm.baselines.independent import IndependentRecurrentPPO, train_independent_ppo
+    import dataclasses
+
     from sb3_latentswarm.experiments.run_record import machine_summary
-    from sb3_latentswarm.latent_ppo import LatentSwarmPPO
-    from sb3_latentswarm.runs.checkpoints import (
-        CheckpointError,
-        StopOnSignal,
-        SwarmCheckpointCallback,
-        TrainingInterrupted,
-        default_save_freq,
-        latest_checkpoint,
-        load_checkpoint,
-        read_checkpoint_state,
-    )
-    from sb3_latentswarm.utils.atomic import atomic_path, probe_writable, write_json
+    from sb3_latentswarm.runs.checkpoints import CheckpointError
+    from sb3_latentswarm.runs.run import Run, RunSpec
 
     spec = trial["spec"]
     variant, train_seed, grid_point = trial["variant"], int(trial["train_seed"]), dict(trial["grid_point"])
     preset = spec.point_preset(grid_point)
-    train_config = training_config(variant, preset)
     depth = spec.warm_start_depth  # a continued trial draws new episodes and random numbers (warm_start_seed)
     env_seed = warm_start_seed(training_env_seed(train_seed, preset.n_envs), depth)
-    env = preset.make_env(env_seed, config=train_config)
+    train_preset = dataclasses.replace(
+        preset, config=training_config(variant, preset), algo_kwargs=variant_algo_kwargs(variant, preset.algo_kwargs)
+    )
     progress = TuneProgress(report)
     output = Path(output)
-    checkpoint_dir = output / TRIAL_CHECKPOINTS
-    latest = latest_checkpoint(checkpoint_dir) if variant != "independent" else None
     identity = _trial_identity(trial)
-    resumed_from = None
-    warm_started: dict[str, Any] | None = None  # the earlier sweep's trial this one continues (spec.warm_start)
-    if latest is not None:
-        if not resume:
-            raise CheckpointError(f"{checkpoint_dir} holds checkpoints (newest {latest.name}); pass resume=True to continue")
-        stored = read_checkpoint_state(latest)
-        if stored["settings"] != identity:
-            differ = sorted(k for k in identity if stored["settings"].get(k) != identity[k])
-            raise CheckpointError(f"{latest} is a checkpoint of another trial (it differs in {differ}); use another folder")
-        resumed_from = int(stored["num_timesteps"])
-        progress.rows = list(stored["extra"].get("progress_rows", []))
-        warm_started = stored["extra"].get("warm_start")
-    probe_writable(output, room_bytes=1 << 20)
-    start = time.perf_counter()
-    model: LatentSwarmPPO | IndependentRecurrentPPO
     earlier_dir = Path(spec.warm_start) / "trials" / trial["trial_id"] if spec.warm_start is not None else None
-    if variant == "independent":
-        if earlier_dir is not None:
-            warm_started = _warm_start_record(spec.warm_start, earlier_dir, progress)
-        independent = train_independent_ppo(
-            env,
-            preset.total_timesteps,
-            seed=warm_start_seed(train_seed, depth),
-            device=device,
-            callback=progress,
-            continue_from=None if earlier_dir is None else earlier_dir / "model.zip",
-            **preset.independent_ppo_kwargs(),
-        )
-        model, trained_steps, trained_on = independent, independent.model.num_timesteps, independent.model.device
-    else:
-        if latest is not None:
-            latent = load_checkpoint(latest, env=env, device=device)
+    with Run(output) as run:
+        warm_started: dict[str, Any] | None = None  # the earlier sweep's trial this one continues (spec.warm_start)
+        if run.start is not None and resume:
+            stored = run.state or {}
+            if stored["settings"] != identity:
+                differ = sorted(k for k in identity if stored["settings"].get(k) != identity[k])
+                raise CheckpointError(
+                    f"{run.start} is a checkpoint of another trial (it differs in {differ}); use another folder"
+                )
+            progress.rows = list(stored["extra"].get("progress_rows", []))
+            warm_started = stored["extra"].get("warm_start")
         elif earlier_dir is not None:
-            latent = LatentSwarmPPO.load(earlier_dir / "model.zip", env=env, device=device)
-            latent.set_random_seed(warm_start_seed(train_seed, depth))
             warm_started = _warm_start_record(spec.warm_start, earlier_dir, progress)
-        else:
-            latent = preset.make_model(env, seed=train_seed, device=device, **variant_algo_kwargs(variant, preset.algo_kwargs))
-        per_update = preset.agent_steps_per_update
-        freq = default_save_freq(preset.total_timesteps, per_update) if save_freq is None else save_freq
-        with StopOnSignal() as stop:
-            checkpoints = SwarmCheckpointCallback(
-                freq,
-                checkpoint_dir,
-                keep=keep_checkpoints,
-                settings=identity,
-                extra_state=lambda: {"progress_rows": progress.rows, "warm_start": warm_started},
-                stop=stop,
-            )
-            remaining = preset.total_timesteps - latent.num_timesteps
-            if remaining > 0:
-                fresh = latest is None and spec.warm_start is None
-                latent.learn(total_timesteps=remaining, callback=[progress, checkpoints], reset_num_timesteps=fresh)
-        if checkpoints.stopped:
-            raise TrainingInterrupted(stop.signum, checkpoints.last_path)
-        model, trained_steps, trained_on = latent, latent.num_timesteps, latent.device
-    train_seconds = time.perf_counter() - start
-    output.mkdir(parents=True, exist_ok=True)
-    model.save(output / "model.zip")
 
-    start = time.perf_counter()
-    episodes = evaluate_sets(
-        model, variant, preset.config, spec.eval_sets, spec.eval_episodes, spec.eval_seed, spec.deterministic
-    )
-    eval_seconds = time.perf_counter() - start
+        def evaluate(model: Any) -> pd.DataFrame:
+            return evaluate_sets(
+                model, variant, preset.config, spec.eval_sets, spec.eval_episodes, spec.eval_seed, spec.deterministic
+            )
+
+        hooks = _TrialHooks(progress, warm_started, evaluate)
+        result = run.train(
+            RunSpec(
+                train_preset,
+                output,
+                seed=warm_start_seed(train_seed, depth),  # train_seed for a new model (depth 0)
+                env_seed=env_seed,
+                learner="independent_ppo" if variant == "independent" else "latent_swarm_ppo",
+                device=device,
+                resume=resume and variant != "independent",
+                warm_start=None if earlier_dir is None else earlier_dir / "model.zip",
+                save_freq=save_freq,
+                keep_checkpoints=keep_checkpoints,
+                settings=identity,
+                run_files=False,
+            ),
+            hooks,
+        )
+    episodes = hooks.episodes
+    assert episodes is not None
     labels = {"trial_id": trial["trial_id"], "variant": variant, "train_seed": train_seed, **grid_labels(grid_point)}
     episodes = episodes.assign(**labels)
     with atomic_path(output / "episodes.csv") as tmp:
@@ -367,18 +351,18 @@ def train_and_evaluate(
         "grid_point": grid_point,
         "preset": spec.preset,
         "commit": trial["commit"],
-        "machine": machine_summary(trained_on),
+        "machine": machine_summary(result.device),
         "node": platform.node(),
         **training_settings(variant, preset),  # train_config, algo_kwargs, n_envs
         "eval_config": preset.config.to_dict(),
         "training_env_seeds": [env_seed, env_seed + preset.n_envs - 1],
         "eval_env_seeds": [spec.eval_seed, spec.eval_seed + spec.eval_episodes - 1],
         "budget_agent_steps": preset.total_timesteps,
-        "trained_agent_steps": int(trained_steps),
-        "resumed_from_agent_steps": resumed_from,
+        "trained_agent_steps": result.trained_steps,
+        "resumed_from_agent_steps": result.resumed_from,
         "warm_start": warm_started,
-        "train_seconds": train_seconds,
-        "eval_seconds": eval_seconds,
+        "train_seconds": result.train_seconds,
+        "eval_seconds": hooks.eval_seconds,
         "eval_sets": [s.to_dict() for s in spec.eval_sets],
         "deterministic": spec.deterministic,
         # the first cell's proposed-condition means, for Tune's console
@@ -390,7 +374,6 @@ def train_and_evaluate(
 
 __all__ = [
     "EVAL_SEED_BASE",
-    "TRIAL_CHECKPOINTS",
     "all_conditions",
     "SCORE_METRICS",
     "VARIANTS",

@@ -39,7 +39,8 @@ from sb3_latentswarm import LatentSwarmPPO  # noqa: E402
 from sb3_latentswarm.evaluation import HELD_OUT_SEED, evaluate  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-MODEL = ROOT / "docs/results/coordination/trials/proposed-seed0/model.zip"
+# the first round's coordination proposed-seed0, weight-only (the same weights: examples/weight_only_models.py)
+MODEL = ROOT / "tests/data/models/coordination-proposed-seed0.zip"
 
 
 def load_old_evaluation(commit: str) -> types.ModuleType:

@@ -1,8 +1,8 @@
 """When does prediction help? Coverage of the dropout substitutes across dropout regimes (issue 23, item 2; a map the
 paper does not have).
 
-For each saved model (default: the three committed squashed ``coordination`` models of ``docs/results/actor_choice``,
-``proposed`` learners) this script evaluates the conditions that differ only in what replaces the received message
+For each saved model (default: the five second-round ``proposed`` learners, ``docs/results/coordination_round2``)
+this script evaluates the conditions that differ only in what replaces the received message
 during dropout (Sec. III-C) or in the memory: ``proposed`` (the prediction mhat_t), ``no_predictor`` (a zero vector),
 ``hold_last`` (the last message received) and ``no_memory`` (rho_t zeroed), across a grid of dropout regimes: link
 failure probability p_f (``--p-fail``) x mean outage length in steps (``--mean-outage``; 1 means independent Bernoulli
@@ -46,8 +46,9 @@ from pathlib import Path
 
 import numpy as np
 
-DEFAULT_MODELS = tuple(f"docs/results/actor_choice/models/squashed-seed{seed}.zip" for seed in range(3))
-"""The committed squashed ``coordination`` models (``proposed`` learners, training seeds 0-2)."""
+DEFAULT_MODELS = tuple(f"docs/results/coordination_round2/trials/proposed-seed{seed}/model.zip" for seed in range(5))
+"""The second round's committed ``proposed`` learners (training seeds 0-4). ``docs/results/coordination_dropout_regimes``
+was made with the first round's three squashed models (``git checkout 206f0d5 -- docs/results/actor_choice/models``)."""
 REGIME_CONDITIONS = ("proposed", "no_predictor", "hold_last", "no_memory")
 """The conditions compared in every regime (names of :data:`~sb3_latentswarm.evaluation.CONDITION_TABLE`)."""
 P_FAILS = (0.0, 0.15, 0.3, 0.5, 0.7, 0.9, 1.0)

@@ -13,6 +13,8 @@ PPO optimizes), on the same episode seeds. It writes into ``--output``:
 
     python examples/learning_curve.py --preset fast --episodes 100 --output docs/results/fast_learning_curve \\
         --models docs/results/fast/model.zip docs/results/fast_600_updates/model.zip ...
+
+(those models left the tree after commit 206f0d5: ``git checkout 206f0d5 -- docs/results/fast/model.zip ...``).
 """
 
 from __future__ import annotations

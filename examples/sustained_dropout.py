@@ -8,6 +8,8 @@ memory zeroed (``no_memory``). Both ways of acting, mean and sampled, on the sam
 
     python examples/sustained_dropout.py --model docs/results/fast_1800_updates/model.zip --preset fast \\
         --output docs/results/fast_1800_updates_sustained_dropout
+
+(that model left the tree after commit 206f0d5: ``git checkout 206f0d5 -- docs/results/fast_1800_updates/model.zip``).
 """
 
 from __future__ import annotations

@@ -5,8 +5,8 @@ action vectors), the policy's mean std, the gradient norm of every weighted term
 minibatch of a fresh rollout, and coverage, collisions and steps to 90 % with mean and with sampled actions on
 held-out episode seeds. Writes ``diagnostics.csv``, ``diagnostics.md`` and ``run.md`` into ``--output``.
 
-    python examples/training_diagnostics.py --model docs/results/fast_1800_updates/model.zip --preset fast \\
-        --output runs/diagnostics/fast_1800_updates
+    python examples/training_diagnostics.py --model docs/results/coordination_round2/trials/proposed-seed0/model.zip \\
+        --preset coordination --output runs/diagnostics/coordination_round2
 """
 
 from __future__ import annotations

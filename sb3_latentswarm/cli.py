@@ -296,7 +296,7 @@ def command_train(args: argparse.Namespace) -> int:
             verbose=args.verbose,
         )
         try:
-            run.train(spec, _TrainCommandHooks(args, preset, stored))  # a RunHooks
+            run.train(spec, _TrainCommandHooks(args, preset, stored))  # type: ignore[arg-type]  # a RunHooks
         except CheckpointWriteError as error:
             print(
                 f"sb3-latentswarm train: error: {error}; free some space and resume with:\n  {_resume_command(output)}",

@@ -27,8 +27,8 @@ from sb3_latentswarm.presets import get_preset
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "tests" / "data" / "actor_reference.npz"
 REFERENCE_MODELS = {
-    "coordination_proposed_seed0": ROOT / "docs/results/coordination/trials/proposed-seed0/model.zip",
-    "fast_1800_updates": ROOT / "docs/results/fast_1800_updates/model.zip",
+    "coordination_proposed_seed0": ROOT / "tests/data/models/coordination-proposed-seed0.zip",
+    "fast_1800_updates": ROOT / "tests/data/models/fast_1800_updates.zip",
 }
 ACTOR_KEYS = ("local_obs", "proprio", "link_row")
 CRITIC_KEYS = ("swarm_proprio", "global_map")

@@ -24,9 +24,34 @@ def test_results_page_places_every_folder_once_under_a_title_of_its_own():
     assert len(titles) == len(set(titles)), titles
     # the reports' own "# Table I run: preset `fast`" titles, alike in every folder, are left out
     assert "Table I run" not in page
-    # newest first: the short-rollout run above the 1800-update run, the 300-update checkpoint last
-    assert placed.index("fast_short_rollouts") < placed.index("fast_1800_updates") < placed.index("fast")
-    assert placed[-1] == "fast"
+    # current first: every folder the index marks current is placed before every historical one
+    current, historical = results_index()
+    order = [name for name in placed if name in current] + [name for name in placed if name in historical]
+    assert placed == order, placed
+
+
+def results_index() -> tuple[list[str], dict[str, str]]:
+    """``docs/results/README.md``: the current folders in order, and each historical folder with what supersedes it."""
+    text = (DOCS / "results" / "README.md").read_text()
+    current_part, historical_part = text.split("\n## Current\n")[1].split("\n## Historical")
+    historical_part = historical_part.split("\n## ")[0]
+    row = re.compile(r"^\| `([\w.-]+)/` \|(.*)\|$", re.MULTILINE)
+    current = [name for name, _ in row.findall(current_part)]
+    historical = {name: rest.rsplit("|", 1)[-1] for name, rest in row.findall(historical_part)}
+    return current, historical
+
+
+def test_results_index_lists_every_folder_once_current_first_and_says_what_supersedes_each_historical_one():
+    current, historical = results_index()
+    folders = sorted(p.name for p in (DOCS / "results").iterdir() if p.is_dir())
+    listed = current + list(historical)
+    assert len(listed) == len(set(listed)), "a folder is listed twice"
+    assert sorted(listed) == folders, (sorted(set(folders) - set(listed)), sorted(set(listed) - set(folders)))
+    text = (DOCS / "results" / "README.md").read_text()
+    assert text.index("## Current") < text.index("## Historical")
+    for name, superseded_by in historical.items():
+        named = re.findall(r"`([\w.-]+)/`", superseded_by)
+        assert named and set(named) <= set(folders), (name, superseded_by)
 
 
 def test_every_results_plot_has_a_caption():

@@ -2,7 +2,8 @@
 
 The reference rows (tests/data/evaluation_reference.csv, tests/data/run_episode_reference.npz) were written by the
 evaluation code of commit 7559e37 with tests/data/make_evaluation_reference.py, on the committed coordination model
-docs/results/coordination/trials/proposed-seed0.
+docs/results/coordination/trials/proposed-seed0; the test loads its weight-only copy
+tests/data/models/coordination-proposed-seed0.zip (the same weights, bit for bit: examples/weight_only_models.py).
 
 On the CPU that recorded them the rows are equal bit for bit. Another CPU (the references come from an Intel machine
 with AMX; CI also runs on AMD EPYC with AVX-512) rounds float32 GEMMs differently in the last bit, so the float
@@ -25,7 +26,7 @@ from sb3_latentswarm.rendering import run_episode
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).with_name("data")
-MODEL = ROOT / "docs/results/coordination/trials/proposed-seed0/model.zip"
+MODEL = DATA / "models" / "coordination-proposed-seed0.zip"  # the committed model's weights (weight_only_models.py)
 SEED, N_EPISODES = 4242, 3  # as in make_evaluation_reference.py
 # every column of the old runner (the diagnostics are summed in the same order)
 COLUMNS = ["episode", "seed", "coverage", "collisions", "steps_to_90", "episode_return", "episode_length",

@@ -355,7 +355,7 @@ def test_importing_the_package_applies_the_thread_default_unless_the_environment
 
 @pytest.mark.slow  # trains and evaluates in a subprocess: 9 s at load 5
 def test_dropout_diagnostics_smoke(tmp_path):
-    model = ROOT / "docs/results/coordination/trials/proposed-seed0/model.zip"
+    model = ROOT / "tests/data/models/coordination-proposed-seed0.zip"
     result = run_script(
         "examples/dropout_diagnostics.py",
         *("--model", str(model), "--episodes", "2", "--conditions", "proposed", "hold_last", "--output", str(tmp_path)),

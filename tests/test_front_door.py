@@ -199,11 +199,15 @@ def test_the_demo_script_runs_and_reads_its_tables(tmp_path):
     assert result.returncode == 0, result.stderr
     out = result.stdout
     for text in ("### Demo task", "### Coordination task", "| proposed", "| no_comm", "| random swarm",
+                 "| lawnmower planner", "| frontier planner",
                  "| learner trained without links", "| full_comm", "| no_predictor", "| no_memory",
                  "What the tables show:", "docs/results.md", "episode seeds 1,000,000..1,000,001", "Demo time:"):
         assert text in out, text
     reading = out.split("What the tables show:")[1].strip().splitlines()
-    assert len([line for line in reading if line.startswith("- ")]) == 3
+    assert len([line for line in reading if line.startswith("- ")]) == 5
+    # the reading compares the learned swarm with the scripted planners, and reads the ablation rows
+    assert "lawnmower planner" in reading[1] and "frontier planner" in reading[1]
+    assert "No predictor" in reading[3] and "No memory" in reading[3]
 
 
 @pytest.mark.parametrize("command, dest", [("evaluate", "episodes"), ("sweep", "eval_episodes")])

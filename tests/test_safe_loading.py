@@ -3,10 +3,13 @@
 import base64
 import json
 import pickle
+import runpy
+import warnings
 import zipfile
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from stable_baselines3.common.utils import LinearSchedule
 
@@ -18,6 +21,7 @@ from sb3_latentswarm.latent_ppo.model_file import UnsafeModelFileError, read_dat
 from sb3_latentswarm.latent_ppo.schedules import StepSchedule
 
 ROOT = Path(__file__).resolve().parents[1]
+MODELS = ROOT / "tests" / "data" / "models"  # weight-only copies of committed models (examples/weight_only_models.py)
 SMALL = SwarmConfig(n_agents=3, grid_width=10, grid_height=10, max_steps=30, num_obstacles=5)
 TINY_POLICY = dict(latent_dim=8, predictor_hidden=16, decoder_hidden=16, critic_hidden=16, actor_hidden=16)
 
@@ -136,13 +140,76 @@ def test_load_overrides_pass_the_constructor_checks(saved):
 
 
 def test_committed_models_are_plain_data_and_load_by_default():
-    files = sorted((ROOT / "docs" / "results").glob("*/*.zip"))
+    # a rule over every committed model file, wherever the results folders are (none is needed by name)
+    files = sorted((ROOT / "tests" / "data" / "models").glob("*.zip")) + sorted((ROOT / "docs" / "results").rglob("*.zip"))
     assert files
     for path in files:
         assert read_data(path)[1] == [], path
-    model = LatentSwarmPPO.load(ROOT / "docs" / "results" / "fast_1800_updates" / "model.zip", device="cpu")
+    model = LatentSwarmPPO.load(MODELS / "fast_1800_updates.zip", device="cpu")
     assert model.num_timesteps == 25_920_000 and model.tensorboard_log is None
-    IndependentRecurrentPPO.load(ROOT / "docs" / "results" / "fast_1800_updates" / "independent_ppo.zip", device="cpu")
+    IndependentRecurrentPPO.load(MODELS / "fast_1800_updates-independent_ppo.zip", device="cpu")
+
+
+# ---------------------------------------------------------------------------------------------- weight-only files
+def test_a_weight_only_file_loads_evaluates_alike_and_warns_once_when_training(tmp_path):
+    model = make_model()
+    model.learn(40)
+    model.save(tmp_path / "full.zip")
+    model.save(tmp_path / "weights.zip", include_optimizer=False)
+    with zipfile.ZipFile(tmp_path / "weights.zip") as weights, zipfile.ZipFile(tmp_path / "full.zip") as full:
+        assert set(full.namelist()) - set(weights.namelist()) == {"policy.optimizer.pth"}
+    assert (tmp_path / "weights.zip").stat().st_size < 0.5 * (tmp_path / "full.zip").stat().st_size
+    loaded = LatentSwarmPPO.load(tmp_path / "weights.zip", env=make_vec_env(2, config=SMALL, seed=0))
+    for name, tensor in model.policy.state_dict().items():
+        assert loaded.policy.state_dict()[name].equal(tensor), name
+    kwargs = dict(n_episodes=2, seed=7, deterministic=False)
+    pd.testing.assert_frame_equal(evaluate(loaded, "proposed", **kwargs), evaluate(model, "proposed", **kwargs))
+    with pytest.warns(UserWarning, match="weight-only file .* the optimizer starts fresh"):
+        loaded.learn(40, reset_num_timesteps=False)
+    assert loaded.policy.optimizer.state  # Adam has moments now: the next learn continues them, silently
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=".*weight-only.*")
+        loaded.learn(40, reset_num_timesteps=False)
+    # a file with its optimizer state trains on without the warning
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=".*weight-only.*")
+        LatentSwarmPPO.load(tmp_path / "full.zip", env=make_vec_env(2, config=SMALL, seed=0)).learn(40)
+
+
+def test_a_weight_only_file_must_still_hold_the_policy(tmp_path):
+    make_model().save(tmp_path / "weights.zip", include_optimizer=False)
+    with zipfile.ZipFile(tmp_path / "weights.zip") as original, zipfile.ZipFile(tmp_path / "empty.zip", "w") as out:
+        for item in original.infolist():
+            if item.filename != "policy.pth":
+                out.writestr(item, original.read(item.filename))
+    with pytest.raises(ValueError, match="no policy weights"):
+        LatentSwarmPPO.load(tmp_path / "empty.zip")
+
+
+def test_the_fixture_script_copies_every_entry_but_the_optimizer_state(tmp_path):
+    script = runpy.run_path(str(ROOT / "examples" / "weight_only_models.py"))
+    model = make_model()
+    for source in script["FIXTURES"].values():  # a small stand-in at each source path
+        model.save(tmp_path / "repo" / source)
+    script["main"](script["Args"](output=tmp_path / "out", source_root=tmp_path / "repo"))
+    for name, source in script["FIXTURES"].items():
+        with zipfile.ZipFile(tmp_path / "repo" / source) as full, zipfile.ZipFile(tmp_path / "out" / name) as copy:
+            assert set(full.namelist()) - set(copy.namelist()) == {"policy.optimizer.pth"}
+            assert all(copy.read(entry) == full.read(entry) for entry in copy.namelist())
+    loaded = LatentSwarmPPO.load(tmp_path / "out" / next(iter(script["FIXTURES"])))
+    for name, tensor in model.policy.state_dict().items():
+        assert loaded.policy.state_dict()[name].equal(tensor), name
+    with pytest.raises(SystemExit, match="git checkout 206f0d5"):
+        script["main"](script["Args"](output=tmp_path / "out", source_root=tmp_path / "nowhere"))
+
+
+def test_the_weight_only_fixtures_are_the_committed_models_without_their_optimizer():
+    paths = sorted(MODELS.glob("*.zip"))
+    assert [p.name for p in paths] == sorted(runpy.run_path(str(ROOT / "examples" / "weight_only_models.py"))["FIXTURES"])
+    for path in paths:
+        with zipfile.ZipFile(path) as fixture:
+            assert "policy.optimizer.pth" not in fixture.namelist() and "policy.pth" in fixture.namelist(), path
+    assert sum(p.stat().st_size for p in paths) < 4 * 2**20  # small enough to keep in the repository
 
 
 def test_files_of_another_save_format_fail_clearly(saved, tmp_path):

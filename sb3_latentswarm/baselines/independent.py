@@ -61,9 +61,12 @@ class IndependentRecurrentPPO:
         actions, state = self.model.predict(own, state, episode_start, deterministic)
         return (dict(zip(agent_names, actions)) if agent_names is not None else actions), state
 
-    def save(self, path: str | Path) -> None:
-        """Save the wrapped ``RecurrentPPO`` in SB3's zip layout with plain data and no pickle (as LatentSwarmPPO)."""
-        save_plain(self.model, path)
+    def save(self, path: str | Path, include_optimizer: bool = True) -> None:
+        """Save the wrapped ``RecurrentPPO`` in SB3's zip layout with plain data and no pickle (as LatentSwarmPPO).
+
+        :param include_optimizer: ``False`` writes a weight-only file (no Adam state), enough to evaluate
+        """
+        save_plain(self.model, path, include_optimizer=include_optimizer)
 
     @classmethod
     def load(cls, path: str | Path, device: str = "auto", trust_pickle: bool = False) -> IndependentRecurrentPPO:

@@ -566,7 +566,7 @@ class LatentSwarmPPO(RecurrentPPO):
                 f"{path}: data entry 'swarm_config' has n_agents={self.swarm_config.n_agents}, 'n_agents' is {self.n_agents}"
             )
 
-    def save(self, path, exclude=None, include=None) -> None:
+    def save(self, path, exclude=None, include=None, include_optimizer: bool = True) -> None:
         """Save the model as plain data and tensors (no pickle): see :mod:`sb3_latentswarm.latent_ppo.model_file`.
 
         The file holds no path of this machine (an absolute ``tensorboard_log`` is not kept; a relative one is) and no
@@ -574,18 +574,22 @@ class LatentSwarmPPO(RecurrentPPO):
         :func:`sb3_latentswarm.runs.checkpoints.load_checkpoint`). A path is written atomically:
         to a temporary file in the same folder, then renamed, so a failed save (full disk, size limit, Ctrl-C) leaves
         the earlier file intact. A missing suffix becomes ``.zip``, as in SB3.
+
+        :param include_optimizer: ``False`` leaves out the optimizer state (Adam's moments, about two thirds of the
+            file): enough to evaluate, predict, export or warm-start, and :meth:`load` reads it; :meth:`learn` on such a
+            model starts a fresh optimizer and warns once. Keep the default for a run you mean to continue exactly.
         """
         self.save_format = SAVE_FORMAT
         self.saved_by_version = __version__
         if not isinstance(path, (str, os.PathLike)):  # a file object: SB3 writes into it
-            save_plain(self, path, exclude=exclude, include=include)
+            save_plain(self, path, exclude=exclude, include=include, include_optimizer=include_optimizer)
             return
         path = pathlib.Path(path)
         if path.suffix == "":  # SB3's open_path adds ".zip"
             path = path.with_suffix(".zip")
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(path) as tmp:  # a failed save leaves the earlier file as it was
-            save_plain(self, tmp, exclude=exclude, include=include)
+            save_plain(self, tmp, exclude=exclude, include=include, include_optimizer=include_optimizer)
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "_last_latent_state", "_swarm_summaries"]
@@ -907,6 +911,13 @@ class LatentSwarmPPO(RecurrentPPO):
         """
         if self.env is None:
             raise ValueError("LatentSwarmPPO.learn needs an env: pass one to the constructor, load(..., env=...) or set_env")
+        if getattr(self, "_fresh_optimizer", False):  # set by load for a file saved with include_optimizer=False
+            warnings.warn(
+                "this model was loaded from a weight-only file (saved with include_optimizer=False): the optimizer "
+                "starts fresh (Adam's moments at zero), so training does not continue the saved run exactly",
+                stacklevel=2,
+            )
+            self._fresh_optimizer = False
         return super().learn(
             total_timesteps=total_timesteps,
             callback=callback,

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.save_util import load_from_zip_file, open_path, save_to_zip_file
+from stable_baselines3.common.save_util import load_from_zip_file, open_path, recursive_getattr, save_to_zip_file
 from stable_baselines3.common.utils import ConstantSchedule, FloatSchedule, LinearSchedule
 
 from sb3_latentswarm.config import SwarmConfig
@@ -539,13 +539,25 @@ def read_data(path: str | pathlib.Path | io.BufferedIOBase) -> tuple[dict[str, A
     return raw, _pickled_entries(raw)
 
 
-def save_plain(model: Any, path: str | pathlib.Path | io.BufferedIOBase, exclude=None, include=None) -> None:
+def optimizer_entries(model: Any) -> set[str]:
+    """The names among ``model``'s saved state dicts that are optimizers (``policy.optimizer``): a weight-only file
+    leaves them out."""
+    state_dicts, _ = model._get_torch_save_params()
+    return {name for name in state_dicts if isinstance(recursive_getattr(model, name), th.optim.Optimizer)}
+
+
+def save_plain(
+    model: Any, path: str | pathlib.Path | io.BufferedIOBase, exclude=None, include=None, include_optimizer: bool = True
+) -> None:
     """Save ``model`` (an SB3 algorithm) in SB3's zip layout with a plain-data ``data`` entry.
 
     What SB3's ``save`` would store, less :data:`RUN_STATE`, restricted to :func:`saved_attributes` (other attributes
     set on the model are not saved); :data:`MACHINE_SPECIFIC` attributes are stored as ``None`` when they are absolute
     paths.
     A schedule given as a plain function cannot be stored: it is saved as its current value, with a warning.
+
+    :param include_optimizer: ``False`` writes a weight-only file: no optimizer state (Adam's two moments, about two
+        thirds of a model file), which evaluation never reads; training after loading it starts a fresh optimizer
     """
     algorithm = type(model)
     excluded = set(exclude or ()).union(model._excluded_save_params(), RUN_STATE)
@@ -570,6 +582,8 @@ def save_plain(model: Any, path: str | pathlib.Path | io.BufferedIOBase, exclude
             )
             value = current
         data[name] = to_plain(value, name, algorithm)
+    if not include_optimizer:
+        state_dicts = [name for name in state_dicts if name not in optimizer_entries(model)]
     params = {name: model.get_parameters()[name] for name in state_dicts}
     variables = {name: getattr(model, name) for name in torch_variables}
     save_to_zip_file(path, data=data, params=params, pytorch_variables=variables)
@@ -587,6 +601,8 @@ def load_plain(
 
     The saved constructor arguments, with ``kwargs`` in place of any of them, go through ``algorithm(...)`` so that
     its checks apply; the other saved attributes are then restored and the tensors read with ``weights_only=True``.
+    A weight-only file (saved with ``include_optimizer=False``) loads with a fresh optimizer, and the model's
+    ``_fresh_optimizer`` is then ``True`` (``LatentSwarmPPO.learn`` warns of it once).
 
     :param raw: the file's ``data`` entry as read by :func:`read_data` (free of pickles)
     :raise TypeError: for a keyword that is not a constructor argument, listing those that are
@@ -639,10 +655,15 @@ def load_plain(
     for name in set(params) - {"policy"}:
         if name == "policy.optimizer":
             _check_optimizer_state(params[name], path)
+    # only the optimizer state may be absent (a weight-only file); the policy's tensors were matched name by name above
+    absent = set(model._get_torch_save_params()[0]) - set(params)
+    if absent - optimizer_entries(model):
+        raise ValueError(f"{path}: the file has no {', '.join(sorted(absent))} entry")
     try:
-        model.set_parameters(params, exact_match=True, device=device)
+        model.set_parameters(params, exact_match=not absent, device=device)
     except (KeyError, RuntimeError, ValueError) as error:
         raise ValueError(f"{path}: its tensors do not fit the model it declares ({error})") from None
+    model._fresh_optimizer = bool(absent)
     for name, value in (variables or {}).items():
         if value is not None:
             current = getattr(model, name, None)

@@ -47,10 +47,10 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import CSVOutputFormat, HumanOutputFormat, Logger, TensorBoardOutputFormat
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
+from sb3_latentswarm.latent_ppo.type_aliases import LatentState
 from sb3_latentswarm.utils.atomic import write_bytes, write_text
 from sb3_latentswarm.utils.checks import check_int
 from sb3_latentswarm.utils.signals import SignalHandlers
-from sb3_latentswarm.latent_ppo.type_aliases import LatentState
 
 __all__ = [
     "CHECKPOINT_FORMAT",

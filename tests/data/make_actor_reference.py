@@ -15,8 +15,11 @@ from sb3_latentswarm import LatentSwarmPPO, make_vec_env
 
 ROOT = Path(__file__).resolve().parents[2]
 MODELS = {
-    "coordination_proposed_seed0": "docs/results/coordination/trials/proposed-seed0/model.zip",
-    "fast_1800_updates": "docs/results/fast_1800_updates/model.zip",
+    # weight-only copies of the committed models the references were recorded on (the same weights); the code of
+    # 7559e37 reads no weight-only file: there, use the originals (git checkout 206f0d5 -- docs/results/coordination
+    # docs/results/fast_1800_updates)
+    "coordination_proposed_seed0": "tests/data/models/coordination-proposed-seed0.zip",
+    "fast_1800_updates": "tests/data/models/fast_1800_updates.zip",
 }
 N_STEPS = 6
 ACTOR_KEYS = ("local_obs", "proprio", "link_row")

@@ -25,7 +25,8 @@ from sb3_latentswarm.evaluation import evaluate
 from sb3_latentswarm.rendering import run_episode
 
 ROOT = Path(__file__).resolve().parents[2]
-MODEL = ROOT / "docs/results/coordination/trials/proposed-seed0/model.zip"
+# the committed model's weights, weight-only; at 7559e37 (no weight-only files) use the original from 206f0d5
+MODEL = ROOT / "tests/data/models/coordination-proposed-seed0.zip"
 OUTPUT = Path(__file__).with_name("evaluation_reference.csv")
 EPISODE_OUTPUT = Path(__file__).with_name("run_episode_reference.npz")
 SEED = 4242

@@ -1,0 +1,108 @@
+"""Paired across-seed comparison of one learner against others, cell by cell, against a stated threshold.
+
+Regenerates the verdict table of a pre-registered test (e.g. ``docs/results/coordination_heavy_dropout/``): for each
+other learner S and evaluation cell, the paired differences ``reference(seed k) - S(seed k)`` over the training seeds
+both finished, their mean, and a 95 % percentile-bootstrap interval over seeds (our NumPy port of rliable's method,
+:func:`sb3_latentswarm.experiments.aggregate.stratified_bootstrap_ci`, 10,000 replicates, generator seed 0). A cell
+is **met** when the mean difference is at least ``--threshold`` points and the interval's lower end is above 0.
+
+    python examples/paired_comparison.py --scores runs/sweeps/coordination_heavy_dropout/scores.csv \
+        --reference proposed --against zero_substitute hold_last --cells table1 pf0.9 pf1 --threshold 3 \
+        --output docs/results/coordination_heavy_dropout/paired.md
+
+Input: a sweep's ``scores.csv`` (one row per trial and cell: ``eval_set``, ``condition``, ``variant``,
+``train_seed``, the metric column). Output: a markdown table (printed, and written atomically with ``--output``).
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class Args:
+    scores: Path
+    """A sweep's scores.csv."""
+    reference: str
+    """The learner whose lead is tested (a ``variant`` value)."""
+    against: tuple[str, ...]
+    """The learners it is compared with."""
+    cells: tuple[str, ...]
+    """Evaluation cells (``eval_set`` values), each read at ``condition``."""
+    condition: str = "proposed"
+    """The test-time condition of every row compared (``proposed``: each learner with its own substitute)."""
+    metric: str = "coverage"
+    """The score column (coverage in %, so the threshold is in points)."""
+    threshold: float = 3.0
+    """Points the mean paired difference must reach."""
+    output: Path | None = None
+    """Where to write the markdown table (atomically); printed in any case."""
+
+
+def parse_args(argv: list[str] | None = None) -> Args:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scores", type=Path, required=True, help="a sweep's scores.csv")
+    parser.add_argument("--reference", default="proposed", help="the learner whose lead is tested (default proposed)")
+    parser.add_argument("--against", nargs="+", required=True, help="learners to compare it with")
+    parser.add_argument("--cells", nargs="+", required=True, help="eval_set values (e.g. table1 pf0.9 pf1)")
+    parser.add_argument("--condition", default="proposed", help="test-time condition of the rows (default proposed)")
+    parser.add_argument("--metric", default="coverage", help="score column (default coverage, in %%)")
+    parser.add_argument("--threshold", type=float, default=3.0, help="points the mean difference must reach (3)")
+    parser.add_argument("--output", type=Path, default=None, help="write the markdown table here")
+    ns = parser.parse_args(argv)
+    if not ns.scores.is_file():
+        parser.error(f"--scores: {ns.scores} is not a file")
+    return Args(ns.scores, ns.reference, tuple(ns.against), tuple(ns.cells), ns.condition, ns.metric, ns.threshold,
+                ns.output)
+
+
+def paired_table(args: Args) -> str:
+    """The verdict table as markdown: one row per (other learner, cell)."""
+    import pandas as pd
+
+    from sb3_latentswarm.experiments.aggregate import mean, stratified_bootstrap_ci
+
+    scores = pd.read_csv(args.scores)
+    missing = {"eval_set", "condition", "variant", "train_seed", args.metric} - set(scores.columns)
+    if missing:
+        raise ValueError(f"{args.scores} lacks the column(s) {sorted(missing)}")
+    rows = [
+        f"| vs | cell | seeds | {args.reference} | other | mean difference [95 % CI] | >= {args.threshold:g} and CI > 0 |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for other in args.against:
+        for cell in args.cells:
+            part = scores[(scores["eval_set"] == cell) & (scores["condition"] == args.condition)]
+            by_seed = part.pivot_table(index="train_seed", columns="variant", values=args.metric)
+            if args.reference not in by_seed or other not in by_seed:
+                rows.append(f"| {other} | {cell} | 0 | n/a | n/a | no finished pair | not tested |")
+                continue
+            pairs = by_seed[[args.reference, other]].dropna()
+            if pairs.empty:
+                rows.append(f"| {other} | {cell} | 0 | n/a | n/a | no finished pair | not tested |")
+                continue
+            difference = (pairs[args.reference] - pairs[other]).to_numpy()
+            point, low, high = stratified_bootstrap_ci(difference, mean)
+            met = point >= args.threshold and low > 0.0
+            seeds = ",".join(str(int(s)) for s in pairs.index)
+            rows.append(
+                f"| {other} | {cell} | {len(pairs)} ({seeds}) | {pairs[args.reference].mean():.2f} | "
+                f"{pairs[other].mean():.2f} | {point:+.2f} [{low:+.2f}, {high:+.2f}] | {'met' if met else 'not met'} |"
+            )
+    return "\n".join(rows) + "\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
+    table = paired_table(args)
+    print(table, end="")
+    if args.output is not None:
+        from sb3_latentswarm.utils.atomic import write_text
+
+        write_text(args.output, table)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,41 @@
+"""examples/paired_comparison.py: paired across-seed differences and the threshold verdict, on hand-built scores."""
+
+from __future__ import annotations
+
+import runpy
+from pathlib import Path
+
+import pandas as pd
+
+SCRIPT = Path(__file__).resolve().parents[1] / "examples" / "paired_comparison.py"
+
+
+def _scores(tmp_path: Path) -> Path:
+    rows = []
+    # proposed leads zero_substitute by 4, 5, 6 points (seeds 0-2); hold_last is ahead of proposed by 1 on each seed
+    for seed, (p, z, h) in enumerate([(90.0, 86.0, 91.0), (92.0, 87.0, 93.0), (94.0, 88.0, 95.0)]):
+        for variant, value in (("proposed", p), ("zero_substitute", z), ("hold_last", h)):
+            rows.append({"eval_set": "table1", "condition": "proposed", "variant": variant, "train_seed": seed,
+                         "coverage": value})
+            rows.append({"eval_set": "table1", "condition": "no_comm", "variant": variant, "train_seed": seed,
+                         "coverage": 0.0})
+    rows.append({"eval_set": "pf1", "condition": "proposed", "variant": "proposed", "train_seed": 0, "coverage": 50.0})
+    path = tmp_path / "scores.csv"
+    pd.DataFrame(rows).to_csv(path, index=False)
+    return path
+
+
+def test_paired_differences_and_verdicts(tmp_path, capsys):
+    module = runpy.run_path(str(SCRIPT))
+    output = tmp_path / "paired.md"
+    module["main"](["--scores", str(_scores(tmp_path)), "--against", "zero_substitute", "hold_last",
+                    "--cells", "table1", "pf1", "--threshold", "3", "--output", str(output)])
+    lines = capsys.readouterr().out.splitlines()
+    assert output.read_text().splitlines() == lines
+    rows = {tuple(cell.strip() for cell in line.strip("|").split("|")[:2]): line for line in lines[2:]}
+    # mean of (4, 5, 6) is 5; every bootstrap replicate lies in [4, 6], so the interval is inside it and above 0
+    zero = rows[("zero_substitute", "table1")]
+    assert "| 3 (0,1,2) | 92.00 | 87.00 | +5.00 [+4." in zero and zero.endswith("| met |")
+    assert rows[("hold_last", "table1")].endswith("| not met |") and "-1.00 [-1.00, -1.00]" in rows[("hold_last", "table1")]
+    # pf1 has no finished pair for either learner
+    assert rows[("zero_substitute", "pf1")].endswith("| not tested |")

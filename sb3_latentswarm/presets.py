@@ -108,12 +108,11 @@ class Preset:
         ``SwarmConfig`` fields are validated here by ``SwarmConfig`` itself; ``LatentSwarmPPO`` and
         ``LatentSwarmPolicy`` arguments are validated by their constructors when the model is built.
 
-        :raise TypeError: for a name that is none of those, naming its closest valid names (:func:`unknown_settings_message`)
+        :raise UnknownSettingError: (a ``TypeError``) for a name that is none of those, naming its closest valid names
+            (:func:`check_setting_names`)
         """
+        check_setting_names(sorted(overrides))
         targets = override_targets()
-        unknown = sorted(set(overrides) - {name for names in targets.values() for name in names})
-        if unknown:
-            raise TypeError(unknown_settings_message(unknown))
         pick = {target: {k: v for k, v in overrides.items() if k in names} for target, names in targets.items()}
         algo_kwargs = {**self.algo_kwargs, **pick["LatentSwarmPPO"]}
         if pick["LatentSwarmPolicy"]:
@@ -179,6 +178,26 @@ def unknown_settings_message(unknown: Sequence[str]) -> str:
         described.append(f"{name!r}" + (f" (did you mean {', '.join(close)}?)" if close else " (no close match)"))
     plural = "s" if len(described) > 1 else ""
     return f"unknown setting{plural} {', '.join(described)}; `{LIST_SETTINGS_COMMAND}` lists every setting"
+
+
+class UnknownSettingError(TypeError, ValueError):
+    """A setting name that no target of :func:`override_targets` takes: a ``TypeError``, as an unexpected keyword
+    argument is in Python, and a ``ValueError``, as bad input on the command line is."""
+
+
+def check_setting_names(names: Sequence[str], what: str = "") -> None:
+    """The one check of setting names: ``--set``, ``--grid``, ``--eval-set``, :meth:`Preset.with_overrides` and
+    :meth:`SweepSpec.create <sb3_latentswarm.experiments.SweepSpec.create>` call it.
+
+    :param names: the names, in the order to report them
+    :param what: where they come from (``--grid``), the message's prefix
+    :raise UnknownSettingError: naming each unknown name with its closest valid names (:func:`unknown_settings_message`)
+    """
+    valid = {name for target in override_targets().values() for name in target}
+    unknown = [name for name in dict.fromkeys(names) if name not in valid]
+    if unknown:
+        message = unknown_settings_message(unknown)
+        raise UnknownSettingError(f"{what}: {message}" if what else message)
 
 
 def format_settings(width: int = 100) -> str:

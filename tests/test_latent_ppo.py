@@ -11,9 +11,9 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from sb3_latentswarm import LatentSwarmPPO, SwarmConfig
 from sb3_latentswarm.envs import make_vec_env
 from sb3_latentswarm.latent_ppo.buffers import SwarmRolloutBuffer
-from sb3_latentswarm.latent_ppo.latent_ppo import auxiliary_losses
 from sb3_latentswarm.latent_ppo.policies import SequenceEvaluation
 from sb3_latentswarm.latent_ppo.type_aliases import LatentState
+from sb3_latentswarm.latent_ppo.update import auxiliary_losses
 
 SMALL = SwarmConfig(n_agents=3, grid_width=10, grid_height=10, max_steps=30, num_obstacles=5, p_fail=0.5)
 TINY_POLICY = dict(latent_dim=8, predictor_hidden=16, decoder_hidden=16, critic_hidden=16, actor_hidden=16)

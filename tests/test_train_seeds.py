@@ -225,22 +225,22 @@ def test_a_single_train_seed_keeps_its_env_copies_and_resume_keeps_the_env_seed(
 def test_a_checkpoint_from_before_env_seed_resumes_on_copies_of_its_seed():
     import argparse
 
-    from sb3_latentswarm.cli import _train_settings
+    from sb3_latentswarm.cli.settings import train_settings
 
     args = argparse.Namespace(preset=None, set=None, seed=None, env_seed=None, total_timesteps=None, backend=None,
                               output="run")
     stored = {"preset": "smoke", "set": [], "seed": 3, "total_timesteps": 240, "backend": "batched"}
-    assert _train_settings(args, stored)["env_seed"] == 3
-    assert _train_settings(args)["env_seed"] == 0  # a new run: --seed's default
+    assert train_settings(args, stored)["env_seed"] == 3
+    assert train_settings(args)["env_seed"] == 0  # a new run: --seed's default
     args.env_seed = 4
     with pytest.raises(ValueError, match=r"env_seed \(checkpoint: 3, command: 4\)"):
-        _train_settings(args, stored)
+        train_settings(args, stored)
 
 
 def test_the_resume_command_uses_the_name_the_user_ran(monkeypatch):
     import importlib.metadata
 
-    from sb3_latentswarm.cli import _resume_command
+    from sb3_latentswarm.cli import resume_command
 
     scripts = [importlib.metadata.EntryPoint("swarm", "sb3_latentswarm.cli:main", "console_scripts"),
                importlib.metadata.EntryPoint("other", "another.cli:main", "console_scripts")]
@@ -249,7 +249,7 @@ def test_the_resume_command_uses_the_name_the_user_ran(monkeypatch):
                         ("/venv/bin/other", "sb3-latentswarm"), ("/x/sb3_latentswarm/cli.py", "sb3-latentswarm"),
                         ("", "sb3-latentswarm")]:
         monkeypatch.setattr(sys, "argv", [argv0])
-        assert _resume_command(Path("runs/a b")) == f"{name} train --resume --output 'runs/a b'"
+        assert resume_command(Path("runs/a b")) == f"{name} train --resume --output 'runs/a b'"
 
 
 def test_one_seed_keeps_the_single_run_layout(tmp_path):

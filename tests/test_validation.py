@@ -15,7 +15,7 @@ from sb3_latentswarm.channel import A2AChannel
 from sb3_latentswarm.cli import main
 from sb3_latentswarm.config import FLOAT_BOUNDS
 from sb3_latentswarm.envs import SwarmReconEnv
-from sb3_latentswarm.latent_ppo.latent_ppo import NonFiniteLossError, validate_algorithm_kwargs
+from sb3_latentswarm.latent_ppo import NonFiniteLossError, validate_algorithm_kwargs
 from sb3_latentswarm.rendering import render_episode
 
 SMALL = SwarmConfig(n_agents=3, grid_width=8, grid_height=8, max_steps=12, num_obstacles=3)
@@ -264,7 +264,7 @@ def test_cli_errors_are_one_line_exit_2(tmp_path, capsys, monkeypatch):
         err = capsys.readouterr().err
         assert message in err and len(err.strip().splitlines()) == 1, err
 
-    import sb3_latentswarm.cli as cli
+    import sb3_latentswarm.cli.render as cli
 
     def torch_fails(args):
         raise RuntimeError("mat1 and mat2 shapes cannot be multiplied (3x25 and 9x8)\nmore torch text")

@@ -33,7 +33,7 @@ from sb3_latentswarm.experiments.trial import (
     trial_preset,
     variant_algo_kwargs,
 )
-from sb3_latentswarm.presets import Preset, get_preset, override_targets, unknown_settings_message
+from sb3_latentswarm.presets import Preset, check_setting_names, get_preset
 from sb3_latentswarm.utils.atomic import json_values, write_text
 from sb3_latentswarm.utils.checks import check_bool, check_int
 from sb3_latentswarm.utils.seeding import warm_start_seed
@@ -183,8 +183,8 @@ class SweepSpec:
             raise ValueError(f"--variant: unknown variant(s) {unknown or list(variants)}; choose from {list(VARIANTS)}")
         grid_values: dict[str, tuple[Any, ...]] = {name: tuple(values) for name, values in (grid or {}).items()}
         overrides = dict(overrides or {})
-        _check_settings(list(grid_values), "--grid")
-        _check_settings(list(overrides), "--set")
+        check_setting_names(list(grid_values), "--grid")
+        check_setting_names(list(overrides), "--set")
         for name, values in grid_values.items():
             if name in EVALUATION_ONLY_SETTINGS:
                 raise ValueError(
@@ -416,12 +416,3 @@ class SweepSpec:
 def _as_tuples(value: Any) -> Any:
     """JSON lists back to the tuples the spec held (``log_std_bounds=(-5, 0)`` is written as a list)."""
     return tuple(_as_tuples(v) for v in value) if isinstance(value, list) else value
-
-
-def _check_settings(names: Sequence[str], what: str) -> None:
-    """Training settings (``--set``, ``--grid``) may be anything ``Preset.with_overrides`` routes."""
-    targets = override_targets()
-    unknown = [name for name in names if not any(name in settings for settings in targets.values())]
-    if unknown:
-        raise ValueError(f"{what}: {unknown_settings_message(unknown)}")
-

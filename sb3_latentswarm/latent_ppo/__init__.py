@@ -1,7 +1,8 @@
 """LatentSwarmPPO and its policy.
 
-The names load on first use (PEP 562), so that a torch-free module of this package (``latent_ppo.schedules``) imports
-without torch; the torch thread default is applied when the policy module loads.
+The names load on first use (PEP 562): the package's light modules, such as the learning-rate schedules the presets
+name, import without torch, so that ``sb3-latentswarm --help`` stays fast. Loading the algorithm loads the envs,
+which apply the package's torch thread default (:mod:`sb3_latentswarm.utils.threads`).
 """
 
 from __future__ import annotations
@@ -10,14 +11,16 @@ from typing import TYPE_CHECKING
 
 from sb3_latentswarm._lazy import lazy_exports
 
-_EXPORTS = {  # the module that defines them -> public names
-    "sb3_latentswarm.latent_ppo.latent_ppo": ("LatentSwarmPPO", "NonFiniteLossError", "validate_algorithm_kwargs"),
+_EXPORTS = {
+    "sb3_latentswarm.latent_ppo.latent_ppo": ("LatentSwarmPPO", "validate_algorithm_kwargs"),
     "sb3_latentswarm.latent_ppo.policies": ("LatentSwarmPolicy",),
+    "sb3_latentswarm.latent_ppo.update": ("NonFiniteLossError",),
 }
 
 if TYPE_CHECKING:
-    from sb3_latentswarm.latent_ppo.latent_ppo import LatentSwarmPPO, NonFiniteLossError, validate_algorithm_kwargs
+    from sb3_latentswarm.latent_ppo.latent_ppo import LatentSwarmPPO, validate_algorithm_kwargs
     from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
+    from sb3_latentswarm.latent_ppo.update import NonFiniteLossError
 
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 

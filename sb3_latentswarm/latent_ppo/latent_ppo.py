@@ -17,10 +17,8 @@ from __future__ import annotations
 
 import inspect
 import io
-import math
 import os
 import pathlib
-import warnings
 from collections import deque
 from typing import Any, ClassVar, TypeVar, cast
 
@@ -33,26 +31,25 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
-from stable_baselines3.common.utils import FloatSchedule, explained_variance, obs_as_tensor, safe_mean
+from stable_baselines3.common.utils import FloatSchedule, obs_as_tensor, safe_mean
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.envs.observations import STATE_OBS_KEYS
 from sb3_latentswarm.envs.vec_env import check_vec_normalize
+from sb3_latentswarm.latent_ppo.arguments import check_algorithm_values, fitting_chunk_length
 from sb3_latentswarm.latent_ppo.buffers import SwarmRolloutBuffer
 from sb3_latentswarm.latent_ppo.model_file import UnsafeModelFileError, load_plain, read_data, save_plain
 from sb3_latentswarm.latent_ppo.policies import (
-    AUTOCAST_MODES,
     NEW_POLICY_KWARGS,
     LatentSwarmPolicy,
-    SequenceEvaluation,
     check_observation_space,
     with_legacy_defaults,
 )
 from sb3_latentswarm.latent_ppo.schedules import paper_learning_rate
 from sb3_latentswarm.latent_ppo.type_aliases import LatentState
+from sb3_latentswarm.latent_ppo.update import loss_gradient_norms, minibatch_losses, ppo_update, recompute_old_log_probs
 from sb3_latentswarm.utils.atomic import atomic_path
-from sb3_latentswarm.utils.checks import check_bool, check_choice, check_float, check_int
 from sb3_latentswarm.version import __version__
 
 SelfLatentSwarmPPO = TypeVar("SelfLatentSwarmPPO", bound="LatentSwarmPPO")
@@ -68,31 +65,6 @@ PAPER_LEARNING_RATE = paper_learning_rate()
 
 N_AGENT_KEYS = ("link_row", "swarm_proprio")
 """Observation keys whose shape depends on the number of agents; the policy's parameters do not."""
-
-VALUE_LOSSES = ("mse", "huber")
-GRAD_CLIP_MODES = ("global", "per_group")
-LOSS_TERMS = ("policy", "value", "entropy", "map", "pred")
-"""The terms of the joint loss, as named in ``train/grad_norm_<term>``."""
-
-
-def auxiliary_losses(evaluation: SequenceEvaluation, global_map: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-    """The self-supervised terms of the joint loss.
-
-    Both are averaged per element rather than summed (see the paper-to-code table): a sum over the 2500 cells would
-    make c2 = 5 swamp the PPO terms under the global gradient-norm clip.
-
-    :param evaluation: outputs of :meth:`LatentSwarmPolicy.evaluate_sequences`, time-major (T, B, ...)
-    :param global_map: M_hat_t for every agent-step, (T, B, H, W)
-    :return: (L_map, L_pred)
-    """
-    # Eq. (3): L_map = 1/(NT) sum_i sum_t ||D(mu_t^i) - M_hat_t||^2
-    map_loss = ((evaluation.map_reconstruction - global_map.float().flatten(2)) ** 2).mean()
-    # Eq. (4): L_pred = mean over t in T_comm^i of ||m_t^i - mhat_t^i||^2; the received m is a target (no gradient)
-    pred_error = ((evaluation.predicted_message - evaluation.received_message.detach()) ** 2).mean(-1)
-    comm = evaluation.has_message.float()
-    pred_loss = (pred_error * comm).sum() / comm.sum().clamp(min=1.0)
-    return map_loss, pred_loss
-
 
 def check_save_format(data: dict[str, Any] | None, path: Any, formats: tuple[int, ...] = (SAVE_FORMAT,)) -> None:
     """Raise a clear ``ValueError`` when ``data`` (a saved model's attributes) is not a loadable LatentSwarmPPO file.
@@ -127,26 +99,6 @@ def check_save_format(data: dict[str, Any] | None, path: Any, formats: tuple[int
     )
 
 
-LEARNING_RATE_RANGE = (0.0, 1.0)
-"""Learning rates (and every value of a learning-rate schedule) must lie in (0, 1]."""
-CLIP_RANGE_RANGE = (0.0, 1.0)
-"""PPO's epsilon (and every value of its schedule) must lie in (0, 1]."""
-
-
-def _check_schedule(name: str, value: Any, low: float, high: float = math.inf) -> None:
-    """A number in (low, high], or a schedule whose values at progress_remaining 1, 0.5 and 0 are in [low, high] and
-    whose start value (progress_remaining 1) is above ``low`` (a schedule may decay to ``low``, as SB3's linear ones do)."""
-    if not callable(value):
-        check_float(name, value, low, high, low_open=True)
-        return
-    for progress in (1.0, 0.5, 0.0):
-        try:
-            current = value(progress)
-        except Exception as error:  # noqa: BLE001 - a user's schedule; report which argument fails
-            raise ValueError(f"{name}: the schedule fails at progress_remaining={progress}: {error}") from error
-        check_float(f"{name} (its value at progress_remaining={progress})", current, low, high, low_open=progress == 1.0)
-
-
 def validate_algorithm_kwargs(**kwargs: Any) -> dict[str, Any]:
     """Check ``LatentSwarmPPO`` keyword arguments without building anything; return them unchanged.
 
@@ -163,64 +115,8 @@ def validate_algorithm_kwargs(**kwargs: Any) -> dict[str, Any]:
     unknown = sorted(set(kwargs) - known)
     if unknown:
         raise TypeError(f"unknown LatentSwarmPPO argument(s) {unknown}; valid: {', '.join(sorted(known))}")
-    for name in ("n_steps", "batch_size", "n_epochs", "chunk_length", "stats_window_size"):
-        if name in kwargs:
-            check_int(name, kwargs[name], low=1)
-    for name in ("ent_coef", "vf_coef", "map_coef", "pred_coef"):
-        if name in kwargs:
-            check_float(name, kwargs[name], low=0.0)
-    for name in ("gamma", "gae_lambda"):
-        if name in kwargs:
-            check_float(name, kwargs[name], low=0.0, high=1.0)
-    for name in ("max_grad_norm", "huber_delta"):
-        if name in kwargs:
-            check_float(name, kwargs[name], low=0.0, low_open=True)
-    if "learning_rate" in kwargs:
-        _check_schedule("learning_rate", kwargs["learning_rate"], *LEARNING_RATE_RANGE)
-    if "clip_range" in kwargs:
-        _check_schedule("clip_range", kwargs["clip_range"], *CLIP_RANGE_RANGE)
-    if kwargs.get("clip_range_vf") is not None:
-        _check_schedule("clip_range_vf (None deactivates it)", kwargs["clip_range_vf"], 0.0)
-    if kwargs.get("target_kl") is not None:
-        check_float("target_kl (None deactivates it)", kwargs["target_kl"], low=0.0, low_open=True)
-    for name in ("normalize_advantage", "normalize_value", "log_grad_norms", "compile_latent_step", "_init_setup_model"):
-        if name in kwargs:
-            check_bool(name, kwargs[name])
-    if "grad_clip" in kwargs:
-        check_choice("grad_clip", kwargs["grad_clip"], GRAD_CLIP_MODES)
-    if "value_loss" in kwargs:
-        check_choice("value_loss", kwargs["value_loss"], VALUE_LOSSES)
-    if "autocast" in kwargs:
-        check_choice("autocast (None: float32)", kwargs["autocast"], AUTOCAST_MODES)
-    if "verbose" in kwargs:
-        check_int("verbose", kwargs["verbose"], low=0, high=2)
-    if kwargs.get("seed") is not None:
-        check_int("seed", kwargs["seed"], low=0)
-    if kwargs.get("policy_kwargs") is not None and not isinstance(kwargs["policy_kwargs"], dict):
-        raise TypeError(f"policy_kwargs must be a dict or None, got {type(kwargs['policy_kwargs']).__name__}")
-    if kwargs.get("tensorboard_log") is not None and not isinstance(kwargs["tensorboard_log"], (str, os.PathLike)):
-        raise TypeError(f"tensorboard_log must be a path or None, got {type(kwargs['tensorboard_log']).__name__}")
+    check_algorithm_values(kwargs)
     return kwargs
-
-
-class NonFiniteLossError(FloatingPointError):
-    """A loss term or a parameter became NaN or infinite during training; the message names the update and the term."""
-
-
-def _fitting_chunk_length(n_steps: int, chunk_length: int) -> int:
-    """``chunk_length``, or, when it does not divide ``n_steps``, the largest divisor of ``n_steps`` below it.
-
-    Every training sequence then has the same length (no padding), and a rollout of any length trains.
-    """
-    if n_steps % chunk_length == 0:
-        return chunk_length
-    fitting = max(d for d in range(1, min(chunk_length, n_steps) + 1) if n_steps % d == 0)
-    warnings.warn(
-        f"chunk_length={chunk_length} does not divide n_steps={n_steps}: training sequences of {fitting} steps are used "
-        f"(pass a chunk_length that divides n_steps to choose another)",
-        stacklevel=3,
-    )
-    return fitting
 
 
 def _env_config(env: VecEnv) -> SwarmConfig | None:
@@ -327,7 +223,7 @@ class LatentSwarmPPO(RecurrentPPO):
             raise TypeError(f"policy must be 'LatentSwarmPolicy' or a subclass of LatentSwarmPolicy, got {policy!r}")
         arguments = {name: value for name, value in locals().items() if name not in ("self", "policy", "env", "device")}
         validate_algorithm_kwargs(**{name: value for name, value in arguments.items() if not name.startswith("__")})
-        chunk_length = _fitting_chunk_length(n_steps, chunk_length)
+        chunk_length = fitting_chunk_length(n_steps, chunk_length)
         policy_kwargs = dict(policy_kwargs or {})
         if "normalize_value" in policy_kwargs and bool(policy_kwargs["normalize_value"]) != bool(normalize_value):
             raise ValueError(
@@ -694,49 +590,10 @@ class LatentSwarmPPO(RecurrentPPO):
             if summary is not None:
                 self._swarm_summaries.append(summary)
 
-    # ------------------------------------------------------------------ training
+    # ------------------------------------------------------------------ training: latent_ppo/update.py
     def _minibatch_losses(self, rollout_data: Any, clip_range: float, clip_range_vf: float | None) -> dict[str, th.Tensor]:
-        """The unweighted terms of the joint loss on one minibatch, plus the probability ratio."""
-        evaluation = self.policy.evaluate_sequences(
-            rollout_data.observations,
-            rollout_data.actions,
-            rollout_data.latent_state,
-            rollout_data.episode_starts,
-        )
-        advantages = rollout_data.advantages
-        if self.normalize_advantage and advantages.numel() > 1:
-            advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
-
-        # L_CLIP: clipped surrogate objective
-        ratio = th.exp(evaluation.log_prob - rollout_data.old_log_prob)
-        policy_loss_1 = advantages * ratio
-        policy_loss_2 = advantages * th.clamp(ratio, 1 - clip_range, 1 + clip_range)
-        policy_loss = -th.min(policy_loss_1, policy_loss_2).mean()
-
-        # L_VF on the critic's scale: the returns R_t (normalized by ValueNorm when it is on), optionally clipped
-        # around the old value, squared error (the paper's) or Huber (MAPPO's). With ValueNorm the old values go back
-        # to the critic's raw output of the rollout (the statistics they were denormalized with), so the clip compares
-        # the critic with itself in one frame, as MAPPO does: nothing is clipped before the first gradient step.
-        values, returns, old_values = evaluation.values, rollout_data.returns, rollout_data.old_values
-        normalizer = self.policy.value_normalizer
-        if normalizer is not None:
-            returns, old_values = normalizer.normalize(returns), normalizer.normalize(old_values, frame="rollout")
-        if clip_range_vf is not None:
-            values = old_values + th.clamp(values - old_values, -clip_range_vf, clip_range_vf)
-        if self.value_loss == "huber":
-            value_loss = th.nn.functional.huber_loss(values, returns, delta=self.huber_delta)
-        else:
-            value_loss = ((returns - values) ** 2).mean()
-
-        map_loss, pred_loss = auxiliary_losses(evaluation, rollout_data.observations["global_map"])
-        return {
-            "policy": policy_loss,
-            "value": value_loss,
-            "entropy": -evaluation.entropy.mean(),
-            "map": map_loss,
-            "pred": pred_loss,
-            "log_ratio": evaluation.log_prob - rollout_data.old_log_prob,
-        }
+        """The unweighted terms of the joint loss on one minibatch, plus the log probability ratio."""
+        return minibatch_losses(self, rollout_data, clip_range, clip_range_vf)
 
     def _loss_weights(self) -> dict[str, float]:
         # Eq. (2): L = -L_CLIP + c1 L_VF + c2 L_map + c3 L_pred (and SB3's entropy bonus)
@@ -752,145 +609,17 @@ class LatentSwarmPPO(RecurrentPPO):
 
     def loss_gradient_norms(self, losses: dict[str, th.Tensor]) -> dict[str, float]:
         """L2 norm, over all parameters, of the gradient of each weighted loss term (before any clipping)."""
-        weights = self._loss_weights()
-        parameters = [p for p in self.policy.parameters() if p.requires_grad]
-        norms = {}
-        for term in LOSS_TERMS:
-            grads = th.autograd.grad(weights[term] * losses[term], parameters, retain_graph=True, allow_unused=True)
-            squared = th.zeros((), device=self.device)
-            for grad in grads:
-                if grad is not None:
-                    squared = squared + (grad.detach() ** 2).sum()
-            norms[term] = float(th.sqrt(squared))
-        return norms
-
-    def _raise_non_finite(self, losses: dict[str, th.Tensor], update: int, epoch: int, minibatch: int) -> None:
-        """Raise :class:`NonFiniteLossError` naming the first non-finite loss term, the update, the epoch and the
-        minibatch (counted over the update's epochs)."""
-        for term in LOSS_TERMS:
-            value = float(losses[term].detach())
-            if not math.isfinite(value):
-                raise NonFiniteLossError(
-                    f"the {term} loss is {value} in update {update} (epoch {epoch + 1}, minibatch {minibatch}); lower "
-                    f"learning_rate (now {self.policy.optimizer.param_groups[0]['lr']:g}) or check the rewards and "
-                    f"observations"
-                )
-        raise NonFiniteLossError(f"the weighted sum of the loss terms overflows in update {update} (epoch {epoch + 1}, "
-                                 f"minibatch {minibatch}); lower the loss weights or check the rewards")
+        return loss_gradient_norms(self, losses)
 
     def recompute_old_log_probs(self) -> None:
-        """Replace the rollout's log-probabilities log pi_old(a_t) in the buffer by those of the training forward pass
-        (:meth:`LatentSwarmPolicy.sequence_log_prob`, no gradient) with the same parameters, on minibatches of
-        ``batch_size``: under bf16 autocast the rollout's step-by-step forward rounds differently (about 1e-4 in log pi),
-        and the PPO ratio of the first gradient step must be exactly 1. A bf16 GEMM's rows depend on the number of rows
-        but not on which other rows share the minibatch, so the replay of any minibatch of the same size reproduces
-        these values. Called by :meth:`train` when ``autocast`` is set; the float32 replay already matches the rollout
-        (to about 1e-6).
-        """
-        policy = self.policy
-
-        def replayed(batch: Any) -> th.Tensor:
-            return policy.sequence_log_prob(batch.observations, batch.actions, batch.latent_state, batch.episode_starts)
-
-        with th.no_grad():
-            self.rollout_buffer.replace_log_probs(self.batch_size, replayed)
+        """Replace the rollout's log pi_old(a_t) by the training forward pass's
+        (:func:`~sb3_latentswarm.latent_ppo.update.recompute_old_log_probs`)."""
+        recompute_old_log_probs(self)
 
     def train(self) -> None:
-        """One update on the rollout: the joint loss of Sec. III-E, one gradient step per minibatch."""
-        self.policy.set_training_mode(True)
-        self._update_learning_rate(self.policy.optimizer)
-        clip_range = self.clip_range(self._current_progress_remaining)  # type: ignore[operator]
-        clip_range_vf = None if self.clip_range_vf is None else self.clip_range_vf(self._current_progress_remaining)  # type: ignore[operator]
-        if self.policy.value_normalizer is not None:
-            self.policy.value_normalizer.update(th.as_tensor(self.rollout_buffer.returns, device=self.device))
-
-        if self.policy.autocast is not None:
-            self.recompute_old_log_probs()
-        weights = self._loss_weights()
-        update = self.num_timesteps // (self.n_steps * self.n_envs)  # this update's number, counting rollouts from 1
-        parameter_groups = self._parameter_groups()
-        # per minibatch, kept on the device and read once per epoch (a host sync each, a device sync on a GPU): the loss
-        # terms, approx_kl and the clip fraction (term_stats); the gradient norm of each parameter group (norm_stats)
-        term_stats: list[list[float]] = []
-        norm_stats: list[list[float]] = []
-        grad_norms: dict[str, float] = {}
-        continue_training = True
-        loss = th.zeros(())
-
-        for epoch in range(self.n_epochs):
-            epoch_terms: list[th.Tensor] = []
-            epoch_norms: list[th.Tensor] = []
-            for rollout_data in self.rollout_buffer.get(self.batch_size):
-                losses = self._minibatch_losses(rollout_data, clip_range, clip_range_vf)
-                loss = sum(weights[term] * losses[term] for term in LOSS_TERMS)  # type: ignore[assignment]
-                # the one host sync of a minibatch: a non-finite loss must stop training before it reaches the weights
-                if not bool(th.isfinite(loss)):
-                    self._raise_non_finite(losses, update, epoch, len(term_stats) + len(epoch_terms) + 1)
-                if self.log_grad_norms and not grad_norms:
-                    grad_norms = self.loss_gradient_norms(losses)
-
-                with th.no_grad():
-                    log_ratio = losses["log_ratio"]
-                    ratio = th.exp(log_ratio)
-                    approx_kl_div = th.mean((ratio - 1) - log_ratio)
-                    clip_fraction = th.mean((th.abs(ratio - 1) > clip_range).float())
-                    terms = [losses[term].detach() for term in LOSS_TERMS]
-                    epoch_terms.append(th.stack([*terms, approx_kl_div, clip_fraction]))
-
-                # SB3's early stop reads approx_kl every minibatch, only when target_kl is set
-                if self.target_kl is not None and float(approx_kl_div) > 1.5 * self.target_kl:
-                    continue_training = False
-                    if self.verbose >= 1:
-                        print(f"Early stopping at step {epoch} due to reaching max kl: {float(approx_kl_div):.2f}")
-                    break
-
-                self.policy.optimizer.zero_grad()
-                loss.backward()
-                epoch_norms.append(th.stack([th.nn.utils.clip_grad_norm_(g, self.max_grad_norm) for g in parameter_groups]))
-                self.policy.optimizer.step()
-
-            term_stats += th.stack(epoch_terms).tolist() if epoch_terms else []
-            norm_stats += th.stack(epoch_norms).tolist() if epoch_norms else []
-            self._n_updates += 1
-            if not continue_training:
-                break
-        parameters = list(self.policy.parameters())
-        if not bool(th.stack([th.isfinite(p).all() for p in parameters]).all()):
-            bad = [name for name, p in self.policy.named_parameters() if not bool(th.isfinite(p).all())]
-            raise NonFiniteLossError(
-                f"parameters {bad[:3]} became NaN or infinite in update {update} (the losses were finite: the step was "
-                f"too large); lower learning_rate (now {self.policy.optimizer.param_groups[0]['lr']:g})"
-            )
-
-        means = dict(zip((*LOSS_TERMS, "approx_kl", "clip_fraction"), np.mean(term_stats, axis=0)))
-        explained_var = explained_variance(self.rollout_buffer.values.flatten(), self.rollout_buffer.returns.flatten())
-        self.logger.record("train/entropy_loss", means["entropy"])
-        self.logger.record("train/policy_gradient_loss", means["policy"])
-        self.logger.record("train/value_loss", means["value"])
-        self.logger.record("train/map_loss", means["map"])
-        self.logger.record("train/pred_loss", means["pred"])
-        self.logger.record("train/approx_kl", means["approx_kl"])
-        self.logger.record("train/clip_fraction", means["clip_fraction"])
-        self.logger.record("train/loss", loss.item())
-        self.logger.record("train/explained_variance", explained_var)
-        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        self.logger.record("train/clip_range", clip_range)
-        if norm_stats:
-            mean_norms = np.mean(norm_stats, axis=0)
-            names = ["grad_norm"] if self.grad_clip == "global" else ["grad_norm_actor", "grad_norm_critic"]
-            for name, value in zip(names, mean_norms):
-                self.logger.record(f"train/{name}", float(value))
-        for term, value in grad_norms.items():
-            self.logger.record(f"train/grad_norm_{term}", value)
-        if not self.policy.state_dependent_std:
-            log_std = self.policy.bound_log_std(self.policy.log_std.detach())
-            self.logger.record("train/std", float(log_std.exp().mean()))
-        if self.policy.value_normalizer is not None:
-            mean, var = self.policy.value_normalizer.mean_var()
-            self.logger.record("train/value_norm_mean", float(mean))
-            self.logger.record("train/value_norm_std", float(var.sqrt()))
-        if clip_range_vf is not None:
-            self.logger.record("train/clip_range_vf", clip_range_vf)
+        """One update on the rollout: the joint loss of Sec. III-E, one gradient step per minibatch
+        (:func:`~sb3_latentswarm.latent_ppo.update.ppo_update`)."""
+        ppo_update(self)
 
     def learn(
         self: SelfLatentSwarmPPO,

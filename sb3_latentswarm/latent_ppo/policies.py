@@ -60,9 +60,6 @@ from sb3_latentswarm.latent_ppo.recurrence import (  # noqa: F401  (SequenceLine
 from sb3_latentswarm.latent_ppo.type_aliases import LatentState
 from sb3_latentswarm.latent_ppo.value_norm import ValueNorm
 from sb3_latentswarm.utils.checks import check_choice, check_float, check_int
-from sb3_latentswarm.utils.threads import apply_default_torch_threads_once
-
-apply_default_torch_threads_once()  # the package's torch thread default (utils/threads.py), once per process
 
 ACTION_DISTRIBUTIONS = ("gaussian", "squashed_gaussian")
 """Values of ``action_distribution``: the paper's diagonal Gaussian, or the same Gaussian followed by tanh."""

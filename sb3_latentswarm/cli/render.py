@@ -1,0 +1,28 @@
+"""``sb3-latentswarm render``: an animated GIF (or MP4) of one episode and a trajectory figure."""
+
+from __future__ import annotations
+
+import argparse
+
+from sb3_latentswarm.cli.evaluate import load_model
+from sb3_latentswarm.cli.settings import preset_from_args
+
+
+def command_render(args: argparse.Namespace) -> int:
+    """``render``: one episode of ``--model`` (or random actions) under ``--condition``, to ``--output``."""
+    from sb3_latentswarm.rendering import check_model_fits, render_episode
+
+    model = load_model(args) if args.model else None
+    preset = preset_from_args(args, model)
+    check_model_fits(model, preset.config)
+    path = render_episode(
+        model,
+        preset.config,
+        args.output,
+        seed=args.seed,
+        condition=args.condition,
+        fps=args.fps,
+        deterministic=not args.stochastic,
+    )
+    print(f"Wrote {path}")
+    return 0

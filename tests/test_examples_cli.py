@@ -403,3 +403,16 @@ def test_time_to_coverage_report_counts_a_run_that_misses_the_target_as_a_lower_
             capture_output=True, text=True,
         )
         assert result.returncode == 1 and message in result.stderr
+
+
+def test_the_command_line_samples_actions_by_default_and_deterministic_asks_for_the_mean():
+    from sb3_latentswarm.cli.parser import build_parser
+
+    parser = build_parser()
+    for command in (["evaluate", "--model", "m.zip"], ["render", "--model", "m.zip"], ["train"],
+                    ["sweep", "--preset", "smoke", "--seeds", "1"]):
+        assert parser.parse_args(command).stochastic is True, command  # the paper's test-time protocol
+        assert parser.parse_args([*command, "--deterministic"]).stochastic is False, command
+        assert parser.parse_args([*command, "--stochastic"]).stochastic is True, command  # 0.1's spelling still parses
+    with pytest.raises(SystemExit):
+        parser.parse_args(["evaluate", "--model", "m.zip", "--deterministic", "--stochastic"])

@@ -42,6 +42,23 @@ class _ListSettings(argparse.Action):
         parser.exit()
 
 
+
+def add_action_mode(parser: argparse.ArgumentParser, when: str) -> None:
+    """``--deterministic`` / ``--stochastic``: the action mode, sampled by default (the paper's test-time protocol).
+
+    Both set ``stochastic``; ``--stochastic`` is kept for 0.1 command lines (it is the default now).
+    """
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument(
+        "--deterministic", dest="stochastic", action="store_false",
+        help=f"act with the policy's mean action when {when} (default: sampled actions, the paper's protocol)",
+    )
+    mode.add_argument(
+        "--stochastic", dest="stochastic", action="store_true",
+        help="sample the policy's Gaussian actions (the default; kept for 0.1 command lines)",
+    )
+    parser.set_defaults(stochastic=True)
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sb3-latentswarm", description="Train and evaluate latent-state UAV swarms.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -86,11 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
             "recurrent nets on a loaded CPU; see sb3_latentswarm.utils.threads)",
         )
         p.add_argument("--no-progress", action="store_true", help="no progress bars (shown on a terminal otherwise)")
-        p.add_argument(
-            "--stochastic",
-            action="store_true",
-            help="sample the policy's Gaussian actions when evaluating or rendering (default: its mean action)",
-        )
+        add_action_mode(p, "evaluating or rendering")
 
     def add_eval_seed(p: argparse.ArgumentParser) -> None:
         p.add_argument(
@@ -257,7 +270,7 @@ def build_parser() -> argparse.ArgumentParser:
         "seed; a continuation of a continuation (--warm-start twice) seeds its env copies from 1000000 on and needs a "
         "larger one)",
     )
-    sweep.add_argument("--stochastic", action="store_true", help="evaluate with sampled actions (default: the mean action)")
+    add_action_mode(sweep, "evaluating the trials")
     sweep.add_argument("--address", default=None, help="Ray cluster to attach to (default: start Ray on this machine)")
     sweep.add_argument(
         "--storage", default=None, metavar="URI",

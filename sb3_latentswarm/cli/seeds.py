@@ -237,8 +237,7 @@ def _seed_argv(
         argv.append("--evaluate")
     if options["eval_seed"] is not None:
         argv += ["--eval-seed", str(options["eval_seed"])]
-    if options["stochastic"]:
-        argv.append("--stochastic")
+    argv.append("--stochastic" if options["stochastic"] else "--deterministic")
     return tuple(argv)
 
 

@@ -19,6 +19,7 @@ import inspect
 import io
 import os
 import pathlib
+import warnings
 from collections import deque
 from typing import Any, ClassVar, TypeVar, cast
 

@@ -3,12 +3,13 @@
 median and 99th percentile of the wall time over ``--steps`` steps of one thread and the median of the thread's CPU time
 (the better estimate on a loaded machine), with the bytes of the message each UAV sends.
 
-Models: a saved ``LatentSwarmPPO`` (``--model``, default the committed ``coordination`` model) and an untrained
-policy of the ``paper`` preset's size (d_mu = d_tau = d_rho = 512; trained under bf16 autocast, exported in float32).
+Models: a saved ``LatentSwarmPPO`` (``--model``, default the weight-only copy of the committed ``coordination``
+model) and an untrained policy of the ``paper`` preset's size (d_mu = d_tau = d_rho = 512; trained under bf16
+autocast, exported in float32).
 Inputs are a fixed observation and two received messages (the step's cost does not depend on their values).
 
     python benchmarks/agent_step_latency.py
-    python benchmarks/agent_step_latency.py --steps 1000 --model docs/results/coordination/trials/proposed-seed0/model.zip
+    python benchmarks/agent_step_latency.py --steps 1000 --model tests/data/models/coordination-proposed-seed0.zip
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-DEFAULT_MODEL = "docs/results/coordination/trials/proposed-seed0/model.zip"
+DEFAULT_MODEL = "tests/data/models/coordination-proposed-seed0.zip"
 
 
 @dataclass(frozen=True)

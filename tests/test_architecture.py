@@ -29,7 +29,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
 )
 MAX_LINES = 700
 #: Modules still over MAX_LINES, each with its line count on main when the limit was set (issue 33); shrink, never add.
-OVER_THE_LIMIT = {"latent_ppo/policies.py": 703}
+OVER_THE_LIMIT: dict[str, int] = {}
 
 
 def _modules() -> dict[str, Path]:

@@ -1,12 +1,9 @@
 """``LatentSwarmPolicy``: the map / task / memory latent state of Sec. III, as an SB3 policy.
 
-The latent updates of Sec. III-A/B/C (message pooling, memory, predictor or substitute, the asymmetric map update, the
-task update) are written once, in :mod:`sb3_latentswarm.latent_ppo.recurrence`; this module adds the heads:
-
-* actor (Sec. III-D): Gaussian pi_xi(a | tau_t) with mean and diagonal std from tau_t (``action_distribution``:
-  the paper's Gaussian, or opt-in its tanh-squashed version whose actions stay in the [-1, 1] box)
-* map decoder D_eta(mu_t), the reconstruction M_hat_t (Sec. III-A)
-* critic (Sec. III-D): V_omega(s_t), s_t = ({e_t^j}, M_hat_t) read from the global part of the observation
+The latent updates of Sec. III-A/B/C are written once, in :mod:`sb3_latentswarm.latent_ppo.recurrence`; here are the
+networks and the heads: the actor pi_xi(a | tau_t), a Gaussian (or opt-in tanh-squashed) with mean and diagonal std
+from tau_t (Sec. III-D); the map decoder D_eta(mu_t) -> M_hat_t (Sec. III-A); the critic V_omega(s_t),
+s_t = ({e_t^j}, M_hat_t), read from the global part of the observation (Sec. III-D).
 
 The actor side reads only ``local_obs``, ``proprio`` and ``link_row``; the critic only ``swarm_proprio`` and
 ``global_map``. No parameter depends on the number of agents N, so a policy trained with N = 3 runs with N = 5.
@@ -111,11 +108,9 @@ class SequenceEvaluation(NamedTuple):
 
 
 def _mlp(sizes: list[int], activation: type[nn.Module] = nn.Tanh) -> nn.Sequential:
-    layers: list[nn.Module] = []
-    for i in range(len(sizes) - 1):
-        layers.append(nn.Linear(sizes[i], sizes[i + 1]))
-        if i < len(sizes) - 2:
-            layers.append(activation())
+    layers: list[nn.Module] = [nn.Linear(sizes[0], sizes[1])]
+    for i in range(1, len(sizes) - 1):
+        layers += [activation(), nn.Linear(sizes[i], sizes[i + 1])]
     return nn.Sequential(*layers)
 
 
@@ -630,10 +625,8 @@ class LatentSwarmPolicy(BasePolicy):
         (under :attr:`autocast`, and on devices other than the CPU) rather than one :meth:`recurrent_step` per step, the
         rollout's own computation (float32 on the CPU, and after :meth:`compile_latent_step`).
 
-        Chosen by measurement (``docs/algorithm.md``, "The training replay"): on one CPU thread the batched replay makes
-        a bf16 ``paper`` minibatch 1.21x faster, but a float32 one is GEMM-bound (0.99x) and a float32 d = 64 one is
-        bound by per-op overhead in Python (0.86x), though it dispatches 22 % fewer aten ops, which is what a
-        host-bound GPU step pays for.
+        Chosen by measurement (``docs/algorithm.md``, "The training replay"): 1.21x on a bf16 ``paper`` minibatch on one
+        CPU thread (Intel AMX), 0.86-0.99x in float32 there, 22 % fewer aten ops (what a host-bound GPU step pays for).
         """
         return self._compiled_latent_step is None and (self.autocast is not None or self.device.type != "cpu")
 

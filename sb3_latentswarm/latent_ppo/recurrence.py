@@ -263,7 +263,7 @@ class SequenceLinears:
             observed_names = [name for name, _ in blocks if name in OBSERVED_BLOCKS]
             observed: tuple[th.Tensor, ...] = ()
             if observed_names:
-                observed_inputs = th.cat([self.sequence[name] for name in observed_names], dim=-1)  # (T, B, width)
+                observed_inputs = _cat([self.sequence[name] for name in observed_names])  # (T, B, width)
                 # unbind: its backward stacks the T gradients once (indexing [t] would zero-fill a (T, B, .) per step)
                 observed = F.linear(observed_inputs, _columns(columns[True]), bias).unbind(0)
             recurrent = None
@@ -278,7 +278,7 @@ class SequenceLinears:
         if split.recurrent is None:
             assert added is not None  # a layer has at least one block
             return added
-        return split.recurrent(th.cat([block for name, block in blocks if name not in OBSERVED_BLOCKS], dim=-1), added)
+        return split.recurrent(_cat([block for name, block in blocks if name not in OBSERVED_BLOCKS]), added)
 
     def gru(self, cell: nn.GRUCell, blocks: Blocks, hidden: th.Tensor) -> th.Tensor:
         split = self._split(cell, cell.weight_ih, cell.bias_ih, blocks, (cell.weight_hh, cell.bias_hh))
@@ -298,6 +298,10 @@ class SequenceLinears:
 
 def _columns(blocks: list[th.Tensor]) -> th.Tensor:
     return blocks[0] if len(blocks) == 1 else th.cat(blocks, dim=1)
+
+
+def _cat(blocks: list[th.Tensor]) -> th.Tensor:
+    return blocks[0] if len(blocks) == 1 else th.cat(blocks, dim=-1)  # (a single block is not copied)
 
 
 def replay_sequence(policy: LatentSwarmPolicy, inputs: StepInputs, state: LatentState,

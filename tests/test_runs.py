@@ -8,13 +8,13 @@ from pathlib import Path
 
 import pytest
 import torch as th
-from sb3_latentswarm.runs.run import Run, RunHooks, RunSpec, RunStopped, find_start, required_room
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_latentswarm import LatentSwarmPPO
 from sb3_latentswarm.cli import main
 from sb3_latentswarm.presets import get_preset
 from sb3_latentswarm.runs.checkpoints import CheckpointError, estimate_checkpoint_bytes, list_checkpoints
+from sb3_latentswarm.runs.run import Run, RunHooks, RunSpec, RunStopped, find_start, required_room
 
 SMOKE = get_preset("smoke")
 PER_UPDATE = SMOKE.agent_steps_per_update  # 120 agent-steps

@@ -24,7 +24,6 @@ from sb3_latentswarm.experiments import (
     mean,
     plan_trials,
     stratified_bootstrap_ci,
-    sweep_lock,
     trial_id,
     write_report,
 )
@@ -290,32 +289,21 @@ def test_trial_ids_are_unique_readable_and_short():
     assert all(i.startswith("independent-seed12-p_fail=0.123456789-grid_width=") for i in ids)
 
 
-def test_a_second_sweep_into_a_locked_folder_refuses_and_a_dead_holder_does_not_block(tmp_path, capsys):
+def test_a_second_sweep_into_a_locked_folder_refuses(tmp_path, capsys):
     output = tmp_path / "sweep"
-    with sweep_lock(output):
-        assert "pid" in (output / ".sweep.lock").read_text()
-        with pytest.raises(ValueError, match="is in use by another sweep .pid"):
-            with sweep_lock(output):
-                pass
-        with pytest.raises(SystemExit) as error:  # issue 18: two sweeps 2 s apart both trained the same trial
-            main(["sweep", "--preset", "smoke", "--seeds", "1", "--output", str(output)])
-        assert error.value.code == 2 and f"--output {output} is in use by another sweep" in capsys.readouterr().err
-    # a holder killed with kill -9 leaves the file; the kernel has released its flock, so the next sweep goes on
-    holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from pathlib import Path; from sb3_latentswarm.experiments import sweep_lock\n"
-         f"with sweep_lock(Path({str(output)!r})):\n    print('held', flush=True); sys.stdin.read()"],
+    holder = subprocess.Popen(  # issue 18: two sweeps 2 s apart both trained the same trial
+        [sys.executable, "-c", "import sys; from sb3_latentswarm.utils.locks import output_lock\n"
+         f"with output_lock({str(output)!r}):\n    print('held', flush=True); sys.stdin.read()"],
         env={**os.environ, "PYTHONPATH": str(ROOT)}, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
     )
     try:
         assert holder.stdout.readline().strip() == "held"
-        with pytest.raises(ValueError, match=f"pid {holder.pid}"):
-            with sweep_lock(output):
-                pass
+        with pytest.raises(SystemExit) as error:
+            main(["sweep", "--preset", "smoke", "--seeds", "1", "--output", str(output)])
+        assert error.value.code == 2 and f"{output} is in use by another run (pid {holder.pid}" in capsys.readouterr().err
     finally:
         holder.kill()
         holder.wait()
-    with sweep_lock(output):
-        pass
 
 
 def _fake_sweep(output: Path, spec: SweepSpec, episodes_per_cell: int | None = None) -> None:

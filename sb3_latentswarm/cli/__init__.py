@@ -58,6 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     """
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # as given: the sweep's resume command repeats it
     try:
         check_arguments(args)
         command = importlib.import_module(f"{__name__}.{args.command}")

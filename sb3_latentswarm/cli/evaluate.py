@@ -19,7 +19,8 @@ from sb3_latentswarm.baselines import FrontierPlanner, LawnmowerPlanner, RandomP
 from sb3_latentswarm.cli.settings import eval_seed, preset_from_args
 from sb3_latentswarm.latent_ppo import LatentSwarmPPO
 from sb3_latentswarm.presets import Preset
-from sb3_latentswarm.utils.atomic import atomic_path, probe_writable, write_json, write_text
+from sb3_latentswarm.utils.atomic import atomic_path, probe_writable, read_json, write_json, write_text
+from sb3_latentswarm.utils.locks import output_lock
 from sb3_latentswarm.version import __version__
 
 EVALUATION_RECORD = "evaluation.json"
@@ -44,8 +45,10 @@ def command_evaluate(args: argparse.Namespace) -> int:
         preset = dataclasses.replace(preset, eval_episodes=args.episodes)
     record = _evaluation_record(preset, args)
     output = _evaluation_folder(args, record)
-    probe_writable(output, room_bytes=1 << 20)
-    evaluate_and_print(model, preset, args, output, p_fail_sweep=args.p_fail_sweep, baselines=not args.no_baselines)
+    with output_lock(output):  # one writer of the evaluation folder for the whole evaluation
+        _check_evaluation_folder(output, record)  # again: another evaluation may have written it meanwhile
+        probe_writable(output, room_bytes=1 << 20)
+        evaluate_and_print(model, preset, args, output, p_fail_sweep=args.p_fail_sweep, baselines=not args.no_baselines)
     return 0
 
 
@@ -174,9 +177,9 @@ def _evaluation_conflict(folder: Path, record: dict[str, Any]) -> str | None:
     if not path.exists():
         return f"it holds {', '.join(f'{n}.csv' for n in present)} without an {EVALUATION_RECORD} saying what they are"
     try:
-        recorded = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        return f"its {path} cannot be read as JSON ({error}); remove it or pass another --output"
+        recorded = read_json(path)
+    except (OSError, ValueError) as error:  # read_json's message names the file
+        return f"{error}; remove it or pass another --output"
     if not isinstance(recorded, dict):
         return f"its {path} must hold a JSON object (an evaluation record); remove it or pass another --output"
     differ = [key for key in RECORD_IDENTITY if recorded.get(key) != record[key]]
@@ -204,7 +207,7 @@ def _check_evaluation_folder(folder: Path, record: dict[str, Any]) -> dict[str, 
             f"never mixed or overwritten by another model's)"
         )
     path = folder / EVALUATION_RECORD
-    kept = json.loads(path.read_text()).get("tables", {}) if path.exists() else {}
+    kept = read_json(path).get("tables", {}) if path.exists() else {}
     kept = {name: inputs for name, inputs in kept.items() if (folder / f"{name}.csv").exists()}
     return {**record, "tables": {name: inputs for name, inputs in kept.items() if name not in record["requested"]}}
 

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from sb3_latentswarm.cli.evaluate import load_model
 from sb3_latentswarm.cli.settings import preset_from_args
+from sb3_latentswarm.utils.locks import output_lock
 
 
 def command_render(args: argparse.Namespace) -> int:
@@ -15,14 +17,15 @@ def command_render(args: argparse.Namespace) -> int:
     model = load_model(args) if args.model else None
     preset = preset_from_args(args, model)
     check_model_fits(model, preset.config)
-    path = render_episode(
-        model,
-        preset.config,
-        args.output,
-        seed=args.seed,
-        condition=args.condition,
-        fps=args.fps,
-        deterministic=not args.stochastic,
-    )
+    with output_lock(Path(args.output).parent):  # the folder the animation is written into
+        path = render_episode(
+            model,
+            preset.config,
+            args.output,
+            seed=args.seed,
+            condition=args.condition,
+            fps=args.fps,
+            deterministic=not args.stochastic,
+        )
     print(f"Wrote {path}")
     return 0

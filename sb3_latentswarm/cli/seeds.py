@@ -4,7 +4,6 @@ in a process of its own (:mod:`sb3_latentswarm.runs.train_seeds`) and report."""
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -14,7 +13,7 @@ from sb3_latentswarm.cli.evaluate import EVALUATION_TABLES
 from sb3_latentswarm.cli.settings import checked_training_preset, parse_overrides, train_settings
 from sb3_latentswarm.runs.run import find_start, required_room
 from sb3_latentswarm.runs.train_seeds import SEEDS_RECORD, SeedRun, run_seed_processes, seed_folder, seed_state
-from sb3_latentswarm.utils.atomic import probe_writable, write_json
+from sb3_latentswarm.utils.atomic import probe_writable, read_json, write_json
 from sb3_latentswarm.utils.seeding import training_env_seed
 from sb3_latentswarm.utils.threads import available_cores
 from sb3_latentswarm.version import __version__
@@ -34,7 +33,7 @@ def command_train_seeds(args: argparse.Namespace, output: Path) -> int:
     record: dict[str, Any] | None = None
     if record_path.exists():
         try:
-            record = json.loads(record_path.read_text())
+            record = read_json(record_path)
             if not isinstance(record, dict) or not isinstance(record.get("settings"), dict):
                 raise ValueError("not a seeds record")
         except (OSError, ValueError) as error:  # JSONDecodeError is a ValueError

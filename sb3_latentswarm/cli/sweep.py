@@ -3,20 +3,24 @@
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 from collections.abc import Sequence
 from typing import Any
 
+from sb3_latentswarm.cli import program_name
 from sb3_latentswarm.cli.settings import parse_overrides
 
 
 def command_sweep(args: argparse.Namespace) -> int:
     """``sweep``: the sweep spec from the options (checked whole before Ray starts), then the trials on Ray Tune.
 
-    :return: 0; 1 when trials failed (the finished ones are aggregated, ``--resume`` retries the others)
+    :return: 0; 1 when trials failed (the finished ones are aggregated, ``--resume`` retries the others); 128 + the
+        signal's number when SIGINT / SIGTERM / SIGHUP stopped it (Ray Tune stopped cleanly; the resume command printed)
     """
     from sb3_latentswarm.experiments import SweepSpec, run_sweep
     from sb3_latentswarm.experiments.spec import DEFAULT_VARIANTS
+    from sb3_latentswarm.experiments.sweep import SweepStopped
 
     spec = SweepSpec.create(
         args.preset,
@@ -43,6 +47,14 @@ def command_sweep(args: argparse.Namespace) -> int:
             verbose=args.verbose,
             only=args.only,
         )
+    except SweepStopped as stopped:  # SIGINT / SIGTERM / SIGHUP: Ray stopped cleanly, the finished trials are kept
+        argv = [arg for arg in args.argv if arg != "--resume"]
+        print(
+            f"\nsb3-latentswarm sweep: stopped by {stopped.name}; finished trials are kept in {stopped.output}. Resume "
+            f"with:\n  {shlex.join([program_name(), *argv, '--resume'])}",
+            file=sys.stderr,
+        )
+        return stopped.exit_code
     except RuntimeError as error:  # failed trials: the finished ones are reported, --resume retries the rest
         print(f"sb3-latentswarm sweep: {error}", file=sys.stderr)
         return 1

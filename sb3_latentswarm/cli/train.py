@@ -14,9 +14,10 @@ from sb3_latentswarm.cli.evaluate import EVALUATION_TABLES, evaluate_and_print
 from sb3_latentswarm.cli.seeds import command_train_seeds
 from sb3_latentswarm.cli.settings import checked_training_preset, parse_overrides, train_settings
 from sb3_latentswarm.presets import Preset
-from sb3_latentswarm.runs.checkpoints import default_save_freq
+from sb3_latentswarm.runs.checkpoints import default_save_freq, resume_tensorboard
 from sb3_latentswarm.runs.run import CheckpointWriteError, Run, RunHooks, RunResult, RunSpec, RunStopped
 from sb3_latentswarm.runs.train_seeds import SEEDS_RECORD
+from sb3_latentswarm.utils.locks import output_lock
 
 
 def command_train(args: argparse.Namespace) -> int:
@@ -33,7 +34,8 @@ def command_train(args: argparse.Namespace) -> int:
     if output.exists() and not output.is_dir():
         raise ValueError(f"--output {output} is an existing file, not a folder")
     if (args.seeds or 1) > 1 or (output / SEEDS_RECORD).exists():
-        return command_train_seeds(args, output)
+        with output_lock(output):  # the seeds' parent folder, held while the seeds train (each seed holds its own)
+            return command_train_seeds(args, output)
     with Run(output) as run:
         if args.resume and run.start is None:
             raise ValueError(f"--resume: no checkpoint in {run.checkpoint_dir}; train without --resume to start a run there")
@@ -58,13 +60,10 @@ def command_train(args: argparse.Namespace) -> int:
             args.save_freq = stored.get("save_freq", default_save_freq(total, preset.agent_steps_per_update))
         if args.keep_checkpoints is None:
             args.keep_checkpoints = stored.get("keep_checkpoints", 3)
-        tensorboard = args.tensorboard if args.tensorboard is not None else stored.get("tensorboard")
-        tensorboard_run = stored.get("tensorboard_run")
-        if tensorboard is not None and tensorboard_run is None:
-            from stable_baselines3.common.utils import get_latest_run_id
-
-            name = f"latentswarm_{preset.name}"
-            tensorboard_run = str(Path(tensorboard) / f"{name}_{get_latest_run_id(tensorboard, name) + 1}")
+        # the checkpoint never decides where the run writes: its folder only inside --output, else --tensorboard's
+        tensorboard, tensorboard_run, note = resume_tensorboard(output, args.tensorboard, stored, f"latentswarm_{preset.name}")
+        if note:
+            print(note)
         spec = RunSpec(
             preset,
             output,

@@ -16,7 +16,7 @@ from sb3_latentswarm.experiments.aggregate import (
 )
 from sb3_latentswarm.experiments.report import finished_trials, write_report
 from sb3_latentswarm.experiments.spec import SweepSpec, trial_id
-from sb3_latentswarm.experiments.sweep import check_cluster, check_storage, plan_trials, run_sweep, sweep_lock
+from sb3_latentswarm.experiments.sweep import check_cluster, check_storage, plan_trials, run_sweep
 from sb3_latentswarm.experiments.trial import (
     EVAL_SEED_BASE,
     SCORE_METRICS,
@@ -43,7 +43,6 @@ __all__ = [
     "plan_trials",
     "run_sweep",
     "stratified_bootstrap_ci",
-    "sweep_lock",
     "train_and_evaluate",
     "trial_id",
     "write_report",

@@ -23,7 +23,7 @@ import pandas as pd
 from sb3_latentswarm.experiments.aggregate import aggregate_scores, mean, stratified_bootstrap_ci
 from sb3_latentswarm.experiments.spec import SweepSpec, trial_id
 from sb3_latentswarm.experiments.trial import SCORE_METRICS, all_conditions, grid_labels, run_scores
-from sb3_latentswarm.utils.atomic import atomic_path, write_text
+from sb3_latentswarm.utils.atomic import atomic_path, check_real_path, read_json, write_text
 
 METRIC_LABELS = {
     "coverage": "Coverage (%)",
@@ -63,17 +63,19 @@ def finished_trials(output: str | Path, spec: SweepSpec) -> dict[str, dict[str, 
             raise ValueError(
                 f"{folder} is not a trial of this sweep (its trials are {sorted(planned)}); move it out of {trials_dir}"
             )
+        check_real_path(folder, Path(output), "trial folder")
+        for name in TRIAL_FILES:
+            if (folder / name).is_symlink():
+                check_real_path(folder / name, Path(output), "trial's file")
         missing = [name for name in TRIAL_FILES if not (folder / name).is_file()]
         if missing:
             raise ValueError(
                 f"{folder} is damaged: no {', '.join(missing)}; delete the folder and --resume trains the trial again"
             )
         try:
-            record = json.loads((folder / "trial.json").read_text())
-        except json.JSONDecodeError as error:
-            raise ValueError(
-                f"{folder}/trial.json is damaged ({error}); delete the folder and --resume trains it again"
-            ) from None
+            record = read_json(folder / "trial.json")
+        except ValueError as error:
+            raise ValueError(f"{error}; delete the folder and --resume trains it again") from None
         if record.get("trial_id") != folder.name:
             raise ValueError(
                 f"{folder} holds trial {record.get('trial_id')!r}, not {folder.name!r} (a copied folder?); "

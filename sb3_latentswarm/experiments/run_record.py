@@ -21,16 +21,26 @@ from sb3_latentswarm.utils.atomic import write_text
 
 
 def git_commit() -> str:
-    """The short hash of ``HEAD``, marked when tracked files differ from it; ``"unknown"`` outside a git checkout.
+    """What code runs: this package's version and, when it is imported from a git checkout, that checkout's short
+    commit (marked when tracked files differ from it), e.g. ``"0.1.0, commit 1a2b3c4"``.
 
-    Call it before the script writes anything, so that the record names the code that ran.
+    The checkout is the one holding this package (``sb3_latentswarm/..``), never the current folder's repository: a run
+    started elsewhere, or inside another git repository, still records the code that ran. An installed copy (a wheel
+    in site-packages) records its version only. Call it before the script writes anything.
     """
+    from sb3_latentswarm.version import __version__
+
+    root = Path(__file__).resolve().parents[2]
+    if not (root / ".git").exists() or not (root / "sb3_latentswarm").is_dir():
+        return f"{__version__} (not a git checkout)"
     try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True)
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True)
-        return out.stdout.strip() + (" (with uncommitted changes)" if dirty.stdout.strip() else "")
+        git = ["git", "-C", str(root)]
+        out = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True)
+        dirty = subprocess.run([*git, "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True)
+        changed = " (with uncommitted changes)" if dirty.stdout.strip() else ""
+        return f"{__version__}, commit {out.stdout.strip()}{changed}"
     except (OSError, subprocess.CalledProcessError):
-        return "unknown"
+        return f"{__version__}, commit unknown"
 
 
 def machine_summary(device: th.device | str | None = None) -> str:

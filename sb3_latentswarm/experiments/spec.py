@@ -15,6 +15,7 @@ import dataclasses
 import hashlib
 import itertools
 import json
+import math
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -34,13 +35,14 @@ from sb3_latentswarm.experiments.trial import (
     variant_algo_kwargs,
 )
 from sb3_latentswarm.presets import Preset, check_setting_names, get_preset
-from sb3_latentswarm.utils.atomic import json_values, write_text
+from sb3_latentswarm.utils.atomic import check_real_path, json_values, read_json, write_text
 from sb3_latentswarm.utils.checks import check_bool, check_int
 from sb3_latentswarm.utils.seeding import warm_start_seed
 
 __all__ = [
     "DEFAULT_VARIANTS",
     "EVALUATION_ONLY_SETTINGS",
+    "MAX_GRID_POINTS",
     "MAX_TRIAL_ID_LENGTH",
     "SweepSpec",
     "check_training_settings",
@@ -52,6 +54,9 @@ DEFAULT_VARIANTS = ("proposed", "no_comm", "independent")
 EVALUATION_ONLY_SETTINGS = ("eval_episodes",)
 """Settings that change only the evaluation, not the training: refused as ``--grid`` names (two grid points would
 train the same model twice)."""
+MAX_GRID_POINTS = 1000
+"""Most points of a sweep's ``--grid`` (the product of its value counts); a larger grid is refused at once."""
+
 MAX_TRIAL_ID_LENGTH = 80
 """Longest trial id (a folder name under ``trials/`` and in Ray Tune's experiment folder; file systems allow 255 bytes,
 Tune adds its own prefix and suffix)."""
@@ -171,7 +176,8 @@ class SweepSpec:
         :param eval_episodes: default ``overrides["eval_episodes"]``, else the preset's
         :param total_timesteps: the budget of every trial in agent-steps, >= 1 (default: the preset's)
         :param warm_start: an earlier sweep's folder whose finished models the trials continue (see :attr:`warm_start`)
-        :raises ValueError, TypeError: for an unknown name, a repeated or duplicate grid value, an evaluation-only grid
+        :raises ValueError, TypeError: for an unknown name, a grid of more than :data:`MAX_GRID_POINTS` points, a repeated
+            or duplicate grid value, an evaluation-only grid
             name, a setting that ``SwarmConfig``, the vec env, ``LatentSwarmPPO`` or its policy refuses, or a
             ``warm_start`` folder that does not hold this sweep's finished trials at a smaller budget
         """
@@ -185,6 +191,11 @@ class SweepSpec:
         overrides = dict(overrides or {})
         check_setting_names(list(grid_values), "--grid")
         check_setting_names(list(overrides), "--set")
+        n_points = math.prod(len(values) for values in grid_values.values())
+        if n_points > MAX_GRID_POINTS:
+            sizes = " x ".join(f"{len(values)} {name}" for name, values in grid_values.items())
+            raise ValueError(f"--grid has {n_points:,} points ({sizes}), more than the limit of {MAX_GRID_POINTS:,}; "
+                             f"split it into several sweeps")
         for name, values in grid_values.items():
             if name in EVALUATION_ONLY_SETTINGS:
                 raise ValueError(
@@ -282,10 +293,13 @@ class SweepSpec:
                 for variant in self.variants:
                     name = trial_id(variant, seed, point)
                     trial_dir = folder / "trials" / name
+                    for part in (trial_dir, *(trial_dir / f for f in ("trial.json", "model.zip", "progress.csv"))):
+                        if part.is_symlink():
+                            check_real_path(part, folder, "--warm-start trial's file or folder")
                     if not all((trial_dir / f).is_file() for f in ("trial.json", "model.zip", "progress.csv")):
                         missing.append(name)
                         continue
-                    record = json.loads((trial_dir / "trial.json").read_text())
+                    record = read_json(trial_dir / "trial.json")
                     # the settings it trained with, as recorded, not as the preset reads today: a preset's defaults
                     # may have changed since (then --set gives the earlier values back)
                     now = training_settings(variant, preset)
@@ -408,8 +422,8 @@ class SweepSpec:
         :raises ValueError: naming the file when it is not a sweep spec
         """
         try:
-            return cls.from_dict(json.loads(Path(path).read_text()))
-        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as error:
+            return cls.from_dict(read_json(path))
+        except (KeyError, TypeError, ValueError) as error:
             raise ValueError(f"{path} is not a sweep spec ({error})") from None
 
 

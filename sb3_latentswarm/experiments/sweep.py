@@ -3,7 +3,7 @@
 Layout of ``output`` (default ``runs/sweeps/<preset>/``)::
 
     sweep.json                 the :class:`~.spec.SweepSpec` (preset, variants, seeds, grid, overrides, evaluation cells)
-    .sweep.lock                held (``fcntl.flock``) by the sweep running in this folder; free when none runs
+    .lock                      held (:func:`~sb3_latentswarm.utils.locks.output_lock`) by the sweep running here
     trials/<trial_id>/         one finished trial: model.zip, trial.json (config, commit, machine, Ray node),
                                episodes.csv (one row per evaluation episode), progress.csv (one row per rollout)
     running/<trial_id>/        a trial in progress: its mid-trial checkpoints, continued by ``resume=True``
@@ -18,28 +18,79 @@ checkpoint the trial reports to Tune when it is done. ``resume=True`` runs only 
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
 import os
 import shutil
+import signal
 import socket
 import tempfile
 import time
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from sb3_latentswarm.experiments.report import TRIAL_FILES, finished_trials
 from sb3_latentswarm.experiments.spec import SweepSpec, trial_id
 from sb3_latentswarm.experiments.trial import train_and_evaluate
-from sb3_latentswarm.utils.atomic import write_json
+from sb3_latentswarm.utils.atomic import read_json, write_json
 from sb3_latentswarm.utils.checks import check_float
+from sb3_latentswarm.utils.locks import output_lock
+from sb3_latentswarm.utils.signals import SignalHandlers
 
-__all__ = ["check_cluster", "check_storage", "plan_trials", "run_sweep", "select_trials", "sweep_lock"]
+__all__ = ["SweepStopped", "check_cluster", "check_storage", "plan_trials", "run_sweep", "select_trials"]
 
-LOCK_NAME = ".sweep.lock"
-"""The lock file of a sweep folder."""
+
+class SweepStopped(KeyboardInterrupt):
+    """A sweep stopped by SIGINT / SIGTERM / SIGHUP after Ray Tune ended its trials cleanly.
+
+    :param signum: the signal's number
+    :param output: the sweep's folder (``--resume`` continues it)
+    """
+
+    def __init__(self, signum: int, output: Path):
+        self.signum = signum
+        self.output = output
+        super().__init__(f"sweep stopped by {self.name}; resume it with --resume")
+
+    @property
+    def name(self) -> str:
+        return signal.Signals(self.signum).name
+
+    @property
+    def exit_code(self) -> int:
+        """128 + the signal's number (130 for SIGINT, 143 for SIGTERM), as the shell reports a process it ended."""
+        return 128 + self.signum
+
+
+class _StopTune(SignalHandlers):
+    """While Ray Tune runs: the first SIGINT / SIGTERM / SIGHUP asks Tune to stop (through its own SIGUSR1 handler:
+    trials are stopped, the experiment state saved, ``fit`` returns); a second one stops at once. Without this, SIGTERM
+    ends the driver in a Ray abort dump."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.signum: int | None = None
+        self._tune_sigint: str | None = None
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        if self.signum is not None or signal.getsignal(signal.SIGUSR1) in (signal.SIG_DFL, signal.SIG_IGN, None):
+            raise KeyboardInterrupt  # a second signal, or Tune has not started: stop now
+        self.signum = signum
+        os.kill(os.getpid(), signal.SIGUSR1)
+
+    def __enter__(self) -> _StopTune:
+        self._tune_sigint = os.environ.get("TUNE_DISABLE_SIGINT_HANDLER")
+        os.environ["TUNE_DISABLE_SIGINT_HANDLER"] = "1"  # SIGINT stays ours; Tune keeps its SIGUSR1 handler
+        return super().__enter__()
+
+    def __exit__(self, *exc: Any) -> None:
+        super().__exit__(*exc)
+        if self._tune_sigint is None:
+            os.environ.pop("TUNE_DISABLE_SIGINT_HANDLER", None)
+        else:
+            os.environ["TUNE_DISABLE_SIGINT_HANDLER"] = self._tune_sigint
 
 
 def plan_trials(spec: SweepSpec, commit: str) -> list[dict[str, Any]]:
@@ -71,37 +122,6 @@ def select_trials(trials: list[dict[str, Any]], done: set[str], only: Sequence[s
 
 
 # ---------------------------------------------------------------------------------------------- the sweep folder
-@contextmanager
-def sweep_lock(output: Path) -> Iterator[None]:
-    """Hold the sweep folder ``output`` for this process: a second sweep into it refuses while this one runs.
-
-    The lock is ``fcntl.flock`` on ``output/.sweep.lock``: the kernel releases it when the holder exits, however it
-    exits, so a lock left by a killed sweep is never in the way (the file stays; its content only names the last
-    holder). ``flock`` holds between processes of one machine, and on NFS v4 between machines.
-
-    :raises ValueError: when another process holds the folder, naming it (pid, host, start time)
-    """
-    output.mkdir(parents=True, exist_ok=True)
-    path = output / LOCK_NAME
-    handle = open(path, "a+")
-    try:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            handle.seek(0)
-            holder = handle.read().strip() or "another process"
-            raise ValueError(
-                f"--output {output} is in use by another sweep ({holder}); wait for it to end, or choose another --output"
-            ) from None
-        handle.seek(0)
-        handle.truncate()
-        handle.write(f"pid {os.getpid()} on {socket.gethostname()} since {time.strftime('%Y-%m-%d %H:%M:%S')}\n")
-        handle.flush()
-        yield
-    finally:
-        handle.close()  # releases the lock
-
-
 def _check_output(output: Path, spec: SweepSpec, resume: bool) -> None:
     """Refuse a folder that holds another sweep, or this one without ``resume``."""
     saved_path = output / "sweep.json"
@@ -111,7 +131,7 @@ def _check_output(output: Path, spec: SweepSpec, resume: bool) -> None:
         return
     if not resume:
         raise ValueError(f"--output {output} already holds a sweep; pass --resume to continue it, or another --output")
-    saved = json.loads(saved_path.read_text())
+    saved = read_json(saved_path)
     asked = json.loads(json.dumps(spec.to_dict()))
     differ = sorted(key for key in asked.keys() | saved.keys() if asked.get(key) != saved.get(key))
     if differ:
@@ -356,7 +376,8 @@ def run_sweep(
         a path every node can write; default ``output/ray``, enough on one machine
     :param cpus_per_trial: CPUs Ray reserves per trial (its torch threads: the integer part, at least 1)
     :param gpus_per_trial: GPUs Ray reserves per trial (a fraction shares one); with 0, trials train on the CPU
-    :param output: result folder (default ``runs/sweeps/<preset>``), locked while the sweep runs (:func:`sweep_lock`)
+    :param output: result folder (default ``runs/sweeps/<preset>``), locked while the sweep runs
+        (:func:`~sb3_latentswarm.utils.locks.output_lock`)
     :param resume: continue the sweep in ``output``: finished trials are kept, interrupted ones continue from their
         last checkpoint in ``running/``
     :param verbose: Ray Tune's console verbosity (0 silent, 1 status table, 2 also trial results)
@@ -381,7 +402,7 @@ def run_sweep(
     if address is not None:
         check_cluster(address)
     storage_path = check_storage(storage, output)
-    with sweep_lock(output):
+    with output_lock(output):
         trials, done, pending = _plan(output, spec, resume, commit, only)  # again: another sweep may have ended
         print(
             f"Sweep on preset {spec.preset!r}: {len(trials)} trials, {len(done)} already finished, {len(pending)} to run now"
@@ -397,9 +418,12 @@ def run_sweep(
             spec.save(output / "sweep.json")
             try:
                 print(f"Ray: {ray.cluster_resources().get('CPU', 0):g} CPUs at {context.address_info.get('address')}")
-                _run_tune(pending, output, storage_path, {"cpu": cpus_per_trial, "gpu": gpus_per_trial}, verbose)
+                with _StopTune() as stop:
+                    _run_tune(pending, output, storage_path, {"cpu": cpus_per_trial, "gpu": gpus_per_trial}, verbose)
             finally:
                 ray.shutdown()
+            if stop.signum is not None:  # Ray stopped cleanly; the finished trials are in trials/, the others resume
+                raise SweepStopped(stop.signum, output)
         finished = finished_trials(output, spec)
         with contextlib.suppress(OSError):  # the work folder of running trials, once none is left there
             (output / "running").rmdir()

@@ -11,7 +11,6 @@ every trial and cell: the variants are compared on the same maps and start posit
 
 from __future__ import annotations
 
-import json
 import math
 import platform
 import time
@@ -28,7 +27,7 @@ import sb3_latentswarm.evaluation as evaluation
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.presets import Preset, get_preset
 from sb3_latentswarm.runs.run import RunHooks
-from sb3_latentswarm.utils.atomic import atomic_path, json_values, write_json
+from sb3_latentswarm.utils.atomic import atomic_path, json_values, read_json, write_json
 from sb3_latentswarm.utils.seeding import training_env_seed, warm_start_seed
 
 VARIANTS = ("proposed", "no_comm", "zero_substitute", "hold_last", "independent")
@@ -218,7 +217,7 @@ def _trial_identity(trial: dict[str, Any]) -> dict[str, Any]:
 def _warm_start_record(sweep: str, earlier_dir: Path, progress: TuneProgress) -> dict[str, Any]:
     """Start ``progress`` with the earlier trial's rows (``earlier_dir``, a trial of the sweep folder ``sweep``);
     return ``trial.json``'s ``warm_start`` entry."""
-    earlier = json.loads((earlier_dir / "trial.json").read_text())
+    earlier = read_json(earlier_dir / "trial.json")
     rows = pd.read_csv(earlier_dir / "progress.csv")
     progress.rows = rows[[c for c in PROGRESS_COLUMNS if c in rows.columns]].to_dict("records")
     return {

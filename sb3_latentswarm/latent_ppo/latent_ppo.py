@@ -437,7 +437,9 @@ class LatentSwarmPPO(RecurrentPPO):
             raw, _ = read_data(path)
         check_save_format(raw, path)
         raw = {**raw, "policy_kwargs": with_legacy_defaults(raw.get("policy_kwargs"))}
-        model = load_plain(cls, path, raw, device=device, print_system_info=print_system_info, **kwargs)
+        n_envs = getattr(env, "num_envs", 1) if env is not None else None  # its rollout buffer counts in the budget
+        model = load_plain(cls, path, raw, device=device, print_system_info=print_system_info, n_envs_to_train=n_envs,
+                           **kwargs)
         model._check_batch_size()
         if env is not None:
             model.set_env(env, force_reset=force_reset)

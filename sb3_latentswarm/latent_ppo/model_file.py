@@ -43,6 +43,7 @@ from stable_baselines3.common.save_util import load_from_zip_file, open_path, re
 from stable_baselines3.common.utils import ConstantSchedule, FloatSchedule, LinearSchedule
 
 from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.latent_ppo.load_checks import bounded_int, check_config_matches_space, check_load_budget
 from sb3_latentswarm.latent_ppo.schedules import StepSchedule
 
 PLAIN_FORMAT = 1
@@ -507,8 +508,17 @@ def read_data(path: str | pathlib.Path | io.BufferedIOBase) -> tuple[dict[str, A
     file = open_path(path, "r", verbose=0, suffix="zip")
     try:
         with zipfile.ZipFile(file) as archive:
-            if "data" not in archive.namelist():
+            names = archive.namelist()
+            if "data" not in names and {"model.zip", "state.json"} <= set(names):
+                raise ValueError(
+                    f"{path} is a training checkpoint, not a model file: continue it with "
+                    f"sb3_latentswarm.runs.checkpoints.load_checkpoint(path, env) (CLI: train --resume), or use the "
+                    f"model.zip its run saved"
+                )
+            if "data" not in names:
                 raise ValueError(f"{path} is not a saved model: its zip has no 'data' entry")
+            if len(set(names)) != len(names):
+                raise ValueError(f"{path}: its zip holds an entry more than once; refused")
             size = archive.getinfo("data").file_size
             if size > MAX_DATA_BYTES:
                 raise ValueError(
@@ -519,16 +529,16 @@ def read_data(path: str | pathlib.Path | io.BufferedIOBase) -> tuple[dict[str, A
                 if name in archive.namelist() and archive.getinfo(name).file_size > MAX_TENSOR_ENTRY_BYTES:
                     raise ValueError(f"{path}: its {name!r} entry is over the limit of {MAX_TENSOR_ENTRY_BYTES:,} bytes")
             content = archive.read("data")
-    except zipfile.BadZipFile as error:
-        raise ValueError(f"{path} is not a saved model (not a zip file)") from error
+    except (zipfile.BadZipFile, EOFError, NotImplementedError) as error:
+        raise ValueError(f"{path} is not a saved model (not a readable zip file: {error})") from None
     finally:
         if isinstance(path, (str, pathlib.Path)):
             file.close()
         else:
             file.seek(0)
     try:
-        raw = json.loads(content.decode())
-    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raw = json.loads(content.decode(), parse_int=bounded_int)
+    except (UnicodeDecodeError, ValueError) as error:  # also an integer too long for Python to convert
         raise ValueError(f"{path}: its 'data' entry is not valid JSON ({error})") from None
     except RecursionError:
         raise ValueError(f"{path}: its 'data' entry is nested deeper than the limit of {MAX_DEPTH}") from None
@@ -595,6 +605,7 @@ def load_plain(
     raw: dict[str, Any],
     device: th.device | str = "auto",
     print_system_info: bool = False,
+    n_envs_to_train: int | None = None,
     **kwargs: Any,
 ) -> Any:
     """Rebuild a model of class ``algorithm`` saved by :func:`save_plain`, without an env.
@@ -605,6 +616,8 @@ def load_plain(
     ``_fresh_optimizer`` is then ``True`` (``LatentSwarmPPO.learn`` warns of it once).
 
     :param raw: the file's ``data`` entry as read by :func:`read_data` (free of pickles)
+    :param n_envs_to_train: the slots of the env the model will train on, if any: its rollout buffer counts in the
+        memory budget (:func:`~sb3_latentswarm.latent_ppo.load_checks.check_load_budget`)
     :raise TypeError: for a keyword that is not a constructor argument, listing those that are
     """
     if raw.get("plain_format") != PLAIN_FORMAT:
@@ -619,6 +632,7 @@ def load_plain(
             detail = f"missing field {error}" if isinstance(error, KeyError) else str(error)
             raise ValueError(f"{path}: data entry {name!r} cannot be read: {detail}") from None
     check_attributes(algorithm, data, path)
+    check_config_matches_space(data.get("swarm_config"), data.get("observation_space"), path)
     arguments = constructor_arguments(algorithm)
     unknown = sorted(set(kwargs) - set(arguments))
     if unknown:
@@ -636,6 +650,7 @@ def load_plain(
     model.__dict__.update({name: value for name, value in data.items() if name not in overridden})
     if hasattr(model, "_check_loaded"):  # the algorithm's checks of saved values that depend on each other
         model._check_loaded(path)
+    check_load_budget(model, path, n_envs_to_train)  # before anything the file declares is allocated
     try:
         model._setup_model()
     except (TypeError, ValueError, RuntimeError) as error:

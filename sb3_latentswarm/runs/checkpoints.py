@@ -15,6 +15,10 @@ of plain data only (no pickle, see ``docs/security.md``):
   chains, messages in flight), so every running episode continues where it stopped;
 * ``tensors.pth`` (read with ``torch.load(weights_only=True)``): the carried latent state and the torch RNG states.
 
+Reading one is strict (:mod:`sb3_latentswarm.runs.checkpoint_file`, :mod:`sb3_latentswarm.runs.restore_checks`):
+only these entries, each within its size limit, every value type- and range-checked against the model and the env,
+nothing from the file used as a path to write to or a name to call.
+
 The state is captured at the start of a rollout, between two updates: the point where a run holds nothing else.
 Resuming from a checkpoint after update ``u`` with ``learn(total - num_timesteps, reset_num_timesteps=False)`` then
 gives, on the batched backend in one process, bit-identical parameters after update ``u + k`` to a run that never
@@ -22,9 +26,8 @@ stopped (``tests/test_checkpoints.py``). With the SuperSuit backend the env copi
 starts new episodes (env seed ``seed + num_timesteps``), and is a continuation, not a replay.
 
 :class:`SwarmCheckpointCallback` writes them every ``save_freq`` agent-steps (atomically, keeping the last ``keep``);
-:func:`load_checkpoint` (also
-:func:`load_checkpoint`) rebuilds the model
-with its env; :class:`StopOnSignal` turns SIGINT / SIGTERM into a clean stop at the next step.
+:func:`load_checkpoint` rebuilds the model with its env; :func:`newest_valid_checkpoint` picks the newest checkpoint
+that reads whole; :class:`StopOnSignal` turns SIGINT / SIGTERM / SIGHUP into a clean stop at the next step.
 """
 
 from __future__ import annotations
@@ -45,9 +48,27 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import CSVOutputFormat, HumanOutputFormat, Logger, TensorBoardOutputFormat
-from stable_baselines3.common.vec_env import VecEnv, VecMonitor
+from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_latentswarm.latent_ppo.type_aliases import LatentState
+from sb3_latentswarm.runs.checkpoint_file import (
+    CHECKPOINT_FORMAT,
+    CheckpointContents,
+    CheckpointError,
+    NamedBytes,
+    describe_differences,
+    newest_valid_checkpoint,
+    read_checkpoint,
+    read_checkpoint_state,
+)
+from sb3_latentswarm.runs.restore_checks import (
+    CORE_ARRAYS,
+    LINK_STATE,
+    OPTIONAL_CORE_ARRAYS,
+    READ_ONLY_ARRAYS,
+    check_run_state,
+    unwrap,
+)
 from sb3_latentswarm.utils.atomic import write_bytes, write_text
 from sb3_latentswarm.utils.checks import check_int
 from sb3_latentswarm.utils.signals import SignalHandlers
@@ -60,6 +81,7 @@ __all__ = [
     "TrainingInterrupted",
     "ResumableCSVOutputFormat",
     "ResumableTensorBoardOutputFormat",
+    "CheckpointContents",
     "checkpoint_bytes",
     "configure_run_logger",
     "default_save_freq",
@@ -67,31 +89,14 @@ __all__ = [
     "latest_checkpoint",
     "list_checkpoints",
     "load_checkpoint",
+    "newest_valid_checkpoint",
+    "read_checkpoint",
     "read_checkpoint_state",
     "restore_run_state",
+    "resume_tensorboard",
 ]
 
-CHECKPOINT_FORMAT = 1
-"""Version of the checkpoint layout (``state.json``'s ``checkpoint_format``)."""
-
 _NAME = re.compile(r"^checkpoint_(\d+)_steps\.zip$")
-
-#: Attributes of the batched core (:class:`~sb3_latentswarm.envs.batched_core.SwarmBatch`) that change while it runs;
-#: the others are constants of the config. Arrays go to ``arrays.npz``, the random streams to ``state.json``.
-_CORE_ARRAYS = (
-    "_truth", "_map", "_covered", "kinematics", "_links", "footprint", "t", "n_covered", "collisions",
-    "episode_return", "steps_to_90", "_in_link_sum", "_n_dropouts", "_n_link_draws", "_reward_terms", "dropout",
-    "local_obs", "proprio", "link_rows", "global_map",
-)
-#: Core arrays that exist only with some configs (``None`` otherwise): the message ages under delay.
-_OPTIONAL_CORE_ARRAYS = ("_link_ages", "link_ages")
-_READ_ONLY_ARRAYS = ("local_obs", "proprio", "link_rows", "global_map", "link_ages")
-#: Prefix of the link model's state arrays in ``arrays.npz`` (:meth:`~sb3_latentswarm.links.LinkModel.get_state`).
-_LINK_STATE = "link_model."
-
-
-class CheckpointError(ValueError):
-    """A checkpoint is missing, damaged, or does not belong to the run that tries to continue from it."""
 
 
 def default_save_freq(total_timesteps: int, steps_per_update: int, fraction: float = 0.05) -> int:
@@ -129,20 +134,11 @@ def _set_rng_states(plain: dict[str, Any], arrays: dict[str, np.ndarray], tensor
         th.cuda.set_rng_state_all(cuda)
 
 
-def _unwrap(env: VecEnv) -> tuple[VecMonitor | None, VecEnv]:
-    monitor = None
-    while hasattr(env, "venv"):
-        if isinstance(env, VecMonitor):
-            monitor = env
-        env = env.venv
-    return monitor, env
-
-
 def _env_state(env: VecEnv) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """The plain state of a swarm vec env: VecMonitor's counters and, for the batched backend, the running swarms."""
     from sb3_latentswarm.envs.vec_env import BatchedSwarmVecEnv
 
-    monitor, inner = _unwrap(env)
+    monitor, inner = unwrap(env)
     plain: dict[str, Any] = {"backend": type(inner).__name__}
     arrays: dict[str, np.ndarray] = {}
     if monitor is not None:
@@ -158,72 +154,12 @@ def _env_state(env: VecEnv) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
         plain["swarm_seeds"] = list(core.seeds)
         plain["pending_seed"] = inner._pending_seed
         plain["seeded"] = bool(inner._seeded)
-        arrays.update({f"core.{name}": np.asarray(getattr(core, name)) for name in _CORE_ARRAYS})
+        arrays.update({f"core.{name}": np.asarray(getattr(core, name)) for name in CORE_ARRAYS})
         arrays.update(
-            {f"core.{name}": getattr(core, name) for name in _OPTIONAL_CORE_ARRAYS if getattr(core, name) is not None}
+            {f"core.{name}": getattr(core, name) for name in OPTIONAL_CORE_ARRAYS if getattr(core, name) is not None}
         )
-        arrays.update({f"core.{_LINK_STATE}{name}": value for name, value in core.link_model.get_state().items()})
+        arrays.update({f"core.{LINK_STATE}{name}": value for name, value in core.link_model.get_state().items()})
     return plain, arrays
-
-
-def _set_env_state(env: VecEnv, plain: dict[str, Any], arrays: dict[str, np.ndarray]) -> bool:
-    """Restore what :func:`_env_state` saved; ``False`` when the episodes could not be restored (another backend)."""
-    from sb3_latentswarm.envs.vec_env import BatchedSwarmVecEnv
-
-    monitor, inner = _unwrap(env)
-    if monitor is not None and "monitor_episode_returns" in arrays:
-        if arrays["monitor_episode_returns"].shape != monitor.episode_returns.shape:
-            raise CheckpointError(
-                f"the checkpoint's env has {arrays['monitor_episode_returns'].shape[0]} slots, this env {env.num_envs}"
-            )
-        monitor.episode_returns = arrays["monitor_episode_returns"].copy()
-        monitor.episode_lengths = arrays["monitor_episode_lengths"].copy()
-        monitor.episode_count = plain["monitor_episode_count"]
-    if not isinstance(inner, BatchedSwarmVecEnv) or plain.get("backend") != type(inner).__name__:
-        return False
-    core = inner.core
-    if len(plain["swarm_rngs"]) != core.n_swarms:
-        raise CheckpointError(f"the checkpoint's env has {len(plain['swarm_rngs'])} swarms, this env {core.n_swarms}")
-    optional = [name for name in _OPTIONAL_CORE_ARRAYS if getattr(core, name) is not None]
-    if any(f"core.{name}" not in arrays for name in optional):
-        raise CheckpointError(
-            f"the checkpoint's env has no {optional}: the env config differs from the checkpoint's (message delay)"
-        )
-    _set_link_state(core.link_model, arrays)
-    for name in (*_CORE_ARRAYS, *optional):
-        saved, current = arrays[f"core.{name}"], getattr(core, name)
-        if saved.shape != current.shape or saved.dtype != current.dtype:
-            raise CheckpointError(
-                f"the checkpoint's env state {name} has shape {saved.shape} {saved.dtype}, this env's "
-                f"{current.shape} {current.dtype}: the env config differs from the checkpoint's"
-            )
-        value = saved.copy()
-        if name in _READ_ONLY_ARRAYS:
-            value.flags.writeable = False
-        setattr(core, name, value)
-    for k, state in enumerate(plain["swarm_rngs"]):
-        rng = np.random.Generator(getattr(np.random, state["bit_generator"])())
-        rng.bit_generator.state = state
-        core.rngs[k] = rng
-    core.seeds = list(plain["swarm_seeds"])
-    inner._pending_seed = plain["pending_seed"]
-    inner._seeded = plain["seeded"]
-    return True
-
-
-def _set_link_state(link_model: Any, arrays: dict[str, np.ndarray]) -> None:
-    """Restore the link model's state from the core arrays of a checkpoint (``core.link_model.<name>``).
-
-    Checkpoints written before the link models existed keep the Gilbert-Elliott chains as ``core._xi_state``.
-    """
-    prefix = f"core.{_LINK_STATE}"
-    state = {name[len(prefix) :]: value for name, value in arrays.items() if name.startswith(prefix)}
-    if not state and "core._xi_state" in arrays and "xi_state" in link_model.get_state():
-        state = {"xi_state": arrays["core._xi_state"]}
-    try:
-        link_model.set_state(state)
-    except ValueError as error:
-        raise CheckpointError(f"{error}: the env config differs from the checkpoint's") from None
 
 
 def checkpoint_bytes(model: Any, settings: dict[str, Any] | None = None, extra: dict[str, Any] | None = None) -> bytes:
@@ -285,53 +221,40 @@ def _plain_default(value: Any) -> Any:
     raise TypeError(f"a checkpoint holds plain data only, got a {type(value).__name__}")
 
 
-def _open(path: str | Path) -> zipfile.ZipFile:
-    try:
-        archive = zipfile.ZipFile(path)
-    except FileNotFoundError:
-        raise CheckpointError(f"no checkpoint at {path}") from None
-    except zipfile.BadZipFile:
-        raise CheckpointError(f"{path} is not a checkpoint (not a zip file)") from None
-    missing = {"model.zip", "state.json", "arrays.npz", "tensors.pth"} - set(archive.namelist())
-    if missing:
-        archive.close()
-        raise CheckpointError(f"{path} is not a checkpoint of sb3-latentswarm: it lacks {sorted(missing)}")
-    return archive
+def restore_run_state(model: Any, checkpoint: str | Path | CheckpointContents) -> bool:
+    """Put the run state of ``checkpoint`` (RNGs, last observation, latent state, env) into ``model``.
 
+    ``model`` holds the checkpoint's weights already (see :func:`load_checkpoint`) and its env. Everything is checked
+    against the model and the env (:mod:`sb3_latentswarm.runs.restore_checks`) before anything is changed.
 
-def read_checkpoint_state(path: str | Path) -> dict[str, Any]:
-    """The ``state.json`` of a checkpoint (``num_timesteps``, ``settings``, ``extra``, ...), nothing else loaded."""
-    with _open(path) as archive:
-        state = json.loads(archive.read("state.json"))
-    if state.get("checkpoint_format") != CHECKPOINT_FORMAT:
-        raise CheckpointError(
-            f"{path} has checkpoint format {state.get('checkpoint_format')!r}; this version reads {CHECKPOINT_FORMAT}"
-        )
-    return state
-
-
-def restore_run_state(model: Any, path: str | Path) -> bool:
-    """Put the run state of checkpoint ``path`` (RNGs, last observation, latent state, env) into ``model``.
-
-    ``model`` holds the checkpoint's weights already (see :func:`load_checkpoint`) and its env.
-
+    :param checkpoint: a checkpoint's path, or its contents from :func:`read_checkpoint`
     :return: whether the env's running episodes were restored (``False``: another backend; the env is reset with seed
         ``seed + num_timesteps`` when learning continues)
+    :raise CheckpointError: naming the file, for anything that does not fit the model, the env or itself
     """
-    state = read_checkpoint_state(path)
-    with _open(path) as archive:
-        with np.load(io.BytesIO(archive.read("arrays.npz")), allow_pickle=False) as npz:
-            arrays = {name: npz[name] for name in npz.files}
-        tensors = th.load(io.BytesIO(archive.read("tensors.pth")), weights_only=True, map_location="cpu")
-    env_arrays = {name[4:]: value for name, value in arrays.items() if name.startswith("env.")}
-    restored = _set_env_state(model.env, state["env"], env_arrays) if model.env is not None else False
-    if restored:
+    contents = checkpoint if isinstance(checkpoint, CheckpointContents) else read_checkpoint(checkpoint)
+    plan = check_run_state(model, contents)
+    state, arrays, tensors = contents.state, contents.arrays, contents.tensors
+    monitor, inner = unwrap(model.env) if model.env is not None else (None, None)
+    if monitor is not None and "env.monitor_episode_returns" in arrays:
+        monitor.episode_returns = arrays["env.monitor_episode_returns"].copy()
+        monitor.episode_lengths = arrays["env.monitor_episode_lengths"].copy()
+        monitor.episode_count = state["env"]["monitor_episode_count"]
+    if plan.restore_episodes:
+        core = inner.core  # type: ignore[union-attr]
+        core.link_model.set_state(plan.link_state)  # checked: shapes and dtypes fit
+        for name in plan.core_arrays:
+            value = arrays[f"env.core.{name}"].copy()
+            if name in READ_ONLY_ARRAYS:
+                value.flags.writeable = False
+            setattr(core, name, value)
+        core.rngs[:] = plan.generators
+        core.seeds = list(state["env"]["swarm_seeds"])
+        inner._pending_seed = state["env"]["pending_seed"]  # type: ignore[union-attr]
+        inner._seeded = state["env"]["seeded"]  # type: ignore[union-attr]
         model._last_obs = {name[9:]: value.copy() for name, value in arrays.items() if name.startswith("last_obs.")}
         model._last_episode_starts = arrays["last_episode_starts"].copy()
-        saved = LatentState(*(tensors[f"latent.{name}"] for name in LatentState._fields))
-        if saved.map_state.shape[0] != model.n_envs:
-            raise CheckpointError(f"the checkpoint carries {saved.map_state.shape[0]} slots, the env has {model.n_envs}")
-        model._last_latent_state = LatentState(*(t.to(model.device) for t in saved))
+        model._last_latent_state = LatentState(*(tensors[f"latent.{name}"].to(model.device) for name in LatentState._fields))
     else:  # new episodes from a seed that depends on where the run stopped
         base = model.seed if model.seed is not None else 0
         model.env.seed(base + int(state["num_timesteps"]))
@@ -342,28 +265,75 @@ def restore_run_state(model: Any, path: str | Path) -> bool:
             info["r"], info["l"] = np.float32(info["r"]), np.int32(info["l"])
     model._pending_log_values = state.get("pending_log") or {}  # recorded again by SwarmCheckpointCallback
     _set_rng_states(state["rng"], arrays, tensors)
-    return restored
+    return plan.restore_episodes
 
 
 def load_checkpoint(path: str | Path, env: VecEnv, device: th.device | str = "auto", **kwargs: Any) -> Any:
     """Rebuild the :class:`~sb3_latentswarm.latent_ppo.LatentSwarmPPO` of checkpoint ``path`` on ``env``, ready to continue.
 
     Continue with ``model.learn(total - model.num_timesteps, reset_num_timesteps=False)`` (SB3's convention: the
-    remaining agent-steps), which keeps the schedule progress and continues TensorBoard in the same run folder.
+    remaining agent-steps), which keeps the schedule progress. The file never chooses where the run writes: pass
+    ``tensorboard_log`` to continue TensorBoard logging (default: none).
 
-    :param env: the env of the run (same config, backend and number of copies)
-    :param kwargs: passed to :meth:`LatentSwarmPPO.load` (e.g. ``tensorboard_log``; default: the run's)
-    :raise CheckpointError: for a missing or damaged file, or an env that does not fit it
+    :param env: the env of the run (same config, backend and number of copies); an env of another config is refused,
+        naming each field that differs
+    :param kwargs: passed to :meth:`LatentSwarmPPO.load` (e.g. ``tensorboard_log``)
+    :raise CheckpointError: for a missing, damaged or crafted file, or an env that does not fit it, naming the file
     """
     from sb3_latentswarm.latent_ppo import LatentSwarmPPO
+    from sb3_latentswarm.latent_ppo.load_checks import check_load_budget
 
-    state = read_checkpoint_state(path)
-    with _open(path) as archive:
-        model_file = io.BytesIO(archive.read("model.zip"))
-    kwargs.setdefault("tensorboard_log", state.get("tensorboard_log"))
-    model = LatentSwarmPPO.load(model_file, env=env, device=device, **kwargs)
-    restore_run_state(model, path)
+    contents = read_checkpoint(path)
+    kwargs.setdefault("tensorboard_log", None)
+    label = f"{path} (entry model.zip)"
+    try:
+        model = LatentSwarmPPO.load(NamedBytes(contents.model_file, label), device=device, **kwargs)
+    except (TypeError, ValueError) as error:
+        if isinstance(error, TypeError) and label not in str(error):
+            raise  # a wrong keyword of the caller
+        raise CheckpointError(str(error) if label in str(error) else f"{label}: {error}") from None
+    saved_config, config = model.swarm_config, getattr(env, "config", None)
+    if saved_config is not None and config is not None and saved_config != config:
+        differ = describe_differences(saved_config.to_dict(), config.to_dict())
+        raise CheckpointError(f"{path} belongs to a run on another env config: {'; '.join(differ)}")
+    try:
+        check_load_budget(model, label, n_envs=env.num_envs)
+        model.set_env(env)
+    except ValueError as error:
+        raise CheckpointError(str(error) if str(path) in str(error) else f"{path}: {error}") from None
+    restore_run_state(model, contents)
     return model
+
+
+def resume_tensorboard(
+    output: str | Path, given: str | None, stored: dict[str, Any], tb_log_name: str
+) -> tuple[str | None, str | None, str | None]:
+    """Where a resumed run logs TensorBoard: never where the checkpoint alone says.
+
+    The folder is ``given`` (``--tensorboard``) or, without it, the run's stored folder only when it lies inside
+    ``output`` (symlinks resolved); the run folder is the stored one only when it is ``FOLDER/<tb_log_name>_<n>``,
+    else the next new run in the folder.
+
+    :param stored: the checkpoint's ``settings`` (its ``tensorboard`` and ``tensorboard_run``)
+    :return: ``(folder, run folder, note)``: ``note`` is a line to print when the stored folder was not used
+    """
+    from stable_baselines3.common.utils import get_latest_run_id
+
+    note = None
+    folder = given
+    saved_folder, saved_run = stored.get("tensorboard"), stored.get("tensorboard_run")
+    if folder is None and isinstance(saved_folder, str):
+        if Path(saved_folder).resolve().is_relative_to(Path(output).resolve()):
+            folder = saved_folder
+        else:
+            note = (f"TensorBoard: the checkpoint names the folder {saved_folder!r} outside {output}; it is not used. "
+                    f"Pass --tensorboard again to continue logging there")
+    if folder is None:
+        return None, None, note
+    pattern = re.compile(rf"^{re.escape(tb_log_name)}_\d{{1,9}}$")
+    if isinstance(saved_run, str) and Path(saved_run).parent == Path(folder) and pattern.match(Path(saved_run).name):
+        return folder, saved_run, note
+    return folder, str(Path(folder) / f"{tb_log_name}_{get_latest_run_id(folder, tb_log_name) + 1}"), note
 
 
 # ---------------------------------------------------------------------------------------------- logging
@@ -435,11 +405,12 @@ def estimate_checkpoint_bytes(model: Any) -> int:
 
 # ---------------------------------------------------------------------------------------------- files
 def list_checkpoints(folder: str | Path) -> list[Path]:
-    """The checkpoints in ``folder``, oldest first (by their agent-step count)."""
+    """The checkpoints in ``folder``, oldest first (by their agent-step count); symlinks are not checkpoints."""
     folder = Path(folder)
     if not folder.is_dir():
         return []
-    found = [(int(m.group(1)), p) for p in folder.iterdir() if (m := _NAME.match(p.name)) and p.is_file()]
+    regular = (p for p in folder.iterdir() if not p.is_symlink() and p.is_file())
+    found = [(int(m.group(1)), p) for p in regular if (m := _NAME.match(p.name))]
     return [p for _, p in sorted(found)]
 
 
@@ -465,13 +436,13 @@ class TrainingInterrupted(KeyboardInterrupt):
 
 
 class StopOnSignal(SignalHandlers):
-    """Context manager: the first SIGINT / SIGTERM sets :attr:`signum` (training stops cleanly at its next step, see
-    :class:`SwarmCheckpointCallback`); a second one raises ``KeyboardInterrupt`` at once.
+    """Context manager: the first SIGINT / SIGTERM / SIGHUP (a closed terminal) sets :attr:`signum` (training stops
+    cleanly at its next step, see :class:`SwarmCheckpointCallback`); a second one raises ``KeyboardInterrupt`` at once.
 
     Handlers are installed only in the main thread (Python's rule); elsewhere this does nothing.
     """
 
-    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+    SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
     def __init__(self) -> None:
         super().__init__()

@@ -11,8 +11,8 @@ once per seed, :mod:`sb3_latentswarm.runs.train_seeds`) and every sweep trial
         result = run.train(spec, hooks)  # hooks: extra callbacks, what a checkpoint keeps, printing, evaluation
 
 What differs between callers is data (:class:`RunSpec`) or a hook (:class:`RunHooks`), never a second copy of the
-steps. Two places are seams for the checkpoint format's hardening (issue 34): :func:`find_start` chooses the
-checkpoint a run continues from, and :meth:`Run.__enter__` is where the output folder's lock is taken.
+steps. :meth:`Run.__enter__` takes the output folder's lock (:func:`~sb3_latentswarm.utils.locks.output_lock`) for the
+whole run, and :func:`find_start` chooses the newest valid checkpoint to continue.
 """
 
 from __future__ import annotations
@@ -37,11 +37,14 @@ from sb3_latentswarm.runs.checkpoints import (
     default_save_freq,
     estimate_checkpoint_bytes,
     latest_checkpoint,
+    list_checkpoints,
     load_checkpoint,
+    newest_valid_checkpoint,
     read_checkpoint_state,
 )
 from sb3_latentswarm.utils.atomic import atomic_path, probe_writable, write_json
 from sb3_latentswarm.utils.checks import check_int
+from sb3_latentswarm.utils.locks import output_lock
 
 if TYPE_CHECKING:
     from stable_baselines3.common.callbacks import BaseCallback
@@ -210,12 +213,14 @@ class RunHooks:
 
 
 def find_start(output: str | Path) -> Path | None:
-    """The checkpoint a run in ``output`` continues from: the newest in ``output/checkpoints/``, ``None`` for none.
+    """The checkpoint a run in ``output`` continues from: the newest in ``output/checkpoints/`` that reads whole
+    (:func:`~sb3_latentswarm.runs.checkpoints.newest_valid_checkpoint`: a damaged newer one is skipped with one line
+    saying so), ``None`` for none.
 
-    The one place where that choice is made (issue 34 adds the fallback from a damaged newest checkpoint here).
+    :raise CheckpointError: when the folder holds checkpoints and none is valid, naming each and why
     """
-
-    return latest_checkpoint(Path(output) / CHECKPOINTS)
+    found = list_checkpoints(Path(output) / CHECKPOINTS)
+    return newest_valid_checkpoint(found)[0] if found else None
 
 
 def required_room(model: Any) -> int:
@@ -256,9 +261,13 @@ class Run:
         self._state: dict[str, Any] | None = None
 
     def __enter__(self) -> Run:
-        # issue 34: the output folder's lock (sb3_latentswarm.utils.locks.output_lock) is taken here, for the whole run
-        self._lock = contextlib.ExitStack()
-        self.start = find_start(self.output)
+        self._lock = contextlib.ExitStack()  # the output folder is held for the whole run: a second writer is refused
+        self._lock.enter_context(output_lock(self.output))
+        try:
+            self.start = find_start(self.output)
+        except BaseException:
+            self._lock.close()
+            raise
         return self
 
     def __exit__(self, *exc_info: Any) -> None:

@@ -10,12 +10,20 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-__all__ = ["atomic_path", "json_values", "write_text", "write_bytes", "write_json", "probe_writable"]
+__all__ = [
+    "atomic_path", "check_real_path", "json_values", "probe_writable", "read_json", "remove_stale_temporaries", "write_bytes",
+    "write_json", "write_text",
+]
+
+#: The names :func:`atomic_path` and :func:`probe_writable` give their temporary files (``tempfile.mkstemp``'s 8 random
+#: characters between a fixed prefix and suffix).
+_TEMPORARY = re.compile(r"^\.(?:.+\.[a-z0-9_]{8}\.tmp(?:\.[A-Za-z0-9]{1,16})?|write-probe\.[a-z0-9_]{8})$")
 
 
 def _file_mode(final: Path) -> int:
@@ -101,3 +109,67 @@ def probe_writable(folder: str | os.PathLike[str], room_bytes: int = 0) -> None:
         raise ValueError(
             f"output folder {folder} is not writable or has no room for {room_bytes} bytes: {error.strerror or error}"
         ) from None
+
+
+def remove_stale_temporaries(folder: str | os.PathLike[str], depth: int = 3, skip_marker: str | None = None) -> list[Path]:
+    """Remove the temporary files that interrupted atomic writes left in ``folder`` and its subfolders (``depth``
+    levels, symlinks not followed); return them.
+
+    Call it only while holding the folder's lock (:func:`sb3_latentswarm.utils.locks.output_lock` does), so that no
+    write in progress loses its file.
+
+    :param skip_marker: a subfolder holding a file of this name (another run's lock) is left alone, with all below it:
+        it is another output folder, cleaned when its own lock is taken
+    """
+    removed: list[Path] = []
+    level = [Path(folder)]
+    for _ in range(depth + 1):
+        below = []
+        for current in level:
+            try:
+                entries = list(os.scandir(current))
+            except OSError:
+                continue
+            for entry in entries:
+                if entry.is_dir(follow_symlinks=False):
+                    if skip_marker is None or not os.path.lexists(os.path.join(entry.path, skip_marker)):
+                        below.append(Path(entry.path))
+                elif entry.is_file(follow_symlinks=False) and _TEMPORARY.match(entry.name):
+                    with contextlib.suppress(OSError):
+                        os.unlink(entry.path)
+                        removed.append(Path(entry.path))
+        level = below
+    return removed
+
+
+def read_json(path: str | os.PathLike[str]) -> Any:
+    """The JSON in ``path``; a damaged file is a ``ValueError`` naming it (the parser's own message names no file).
+
+    :raises ValueError: for a file that is not UTF-8 JSON, or holds an integer too long to convert
+    """
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError) as error:
+        raise ValueError(f"{path} is damaged: it is not valid JSON ({error})") from None
+
+
+def check_real_path(path: str | os.PathLike[str], root: str | os.PathLike[str], what: str) -> None:
+    """Refuse ``path`` when it, or a folder between ``root`` and it, is a symlink, or when it lies outside ``root``:
+    a result folder's files must be its own (a link could make one run continue or report another's files).
+
+    :param what: what ``path`` is, for the message (``"trial folder"``, ``"model file"``)
+    :raises ValueError: naming the path and what it points to
+    """
+    path, root = Path(path), Path(root)
+    current = path
+    while True:
+        if current.is_symlink():
+            raise ValueError(
+                f"{current} is a symlink (to {os.readlink(current)}); a {what} must be a real "
+                f"{'file' if current == path and not path.is_dir() else 'folder'} inside {root}: copy it there or move it out"
+            )
+        if current == root or current.parent == current:
+            break
+        current = current.parent
+    if not path.resolve().is_relative_to(root.resolve()):
+        raise ValueError(f"{path} lies outside {root}; a {what} must be inside it")

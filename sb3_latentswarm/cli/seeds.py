@@ -13,9 +13,9 @@ from sb3_latentswarm.cli.evaluate import EVALUATION_TABLES
 from sb3_latentswarm.cli.settings import checked_training_preset, parse_overrides, train_settings
 from sb3_latentswarm.runs.run import find_start, required_room
 from sb3_latentswarm.runs.train_seeds import SEEDS_RECORD, SeedRun, run_seed_processes, seed_folder, seed_state
+from sb3_latentswarm.utils import threads as torch_threads
 from sb3_latentswarm.utils.atomic import probe_writable, read_json, write_json
 from sb3_latentswarm.utils.seeding import training_env_seed
-from sb3_latentswarm.utils.threads import available_cores
 from sb3_latentswarm.version import __version__
 
 
@@ -83,7 +83,7 @@ def command_train_seeds(args: argparse.Namespace, output: Path) -> int:
             if states[seed] != "new" or any((folder / f"{name}.csv").exists() for name in EVALUATION_TABLES):
                 raise ValueError(f"--output {output}: {folder} holds an earlier run; pass another --output")
     to_run = [seed for seed in seeds if states[seed] != "finished"]
-    cores = available_cores()
+    cores = torch_threads.available_cores()  # looked up at call time (tests patch it)
     threads = args.threads or 1
     jobs = min(args.jobs or cores, max(len(to_run), 1))
     if jobs * threads > cores:

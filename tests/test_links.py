@@ -23,7 +23,6 @@ from sb3_latentswarm.links import (
     make_link_model,
     pool_delayed_messages,
 )
-from sb3_latentswarm.runs.checkpoints import _env_state, _set_env_state
 
 N_SE = 5.0  # tolerance in standard errors
 
@@ -291,25 +290,40 @@ def test_link_state_round_trip_and_checks():
 
 
 @pytest.mark.parametrize("legacy", [False, True])
-def test_a_checkpoint_restores_the_link_state_of_running_episodes(legacy):
-    config = SwarmConfig(n_agents=3, grid_width=12, grid_height=12, outage_model="gilbert_elliott", p_fail=0.6,
-                         mean_outage_steps=6.0, **({} if legacy else {"message_delay": 1, "message_delay_model": "uniform"}))
-    env = make_vec_env(2, config=config, seed=3)
-    env.reset()
-    actions = np.random.default_rng(0).uniform(-1, 1, (10, env.num_envs, 4)).astype(np.float32)
-    for a in actions[:5]:
-        env.step(a)
-    plain, arrays = _env_state(env)
-    arrays = {name: np.array(value) for name, value in arrays.items()}  # a checkpoint writes them at once
-    if legacy:  # a checkpoint written before the link models kept the chains as the core's _xi_state
-        arrays["core._xi_state"] = arrays.pop("core.link_model.xi_state")
-    first = [env.step(a)[0] for a in actions[5:]]
-    _set_env_state(env, plain, arrays)
-    again = [env.step(a)[0] for a in actions[5:]]
-    for x, y in zip(first, again):
-        assert x.keys() == y.keys() and ("link_age" in x) == (not legacy)
-        for key in x:
-            np.testing.assert_array_equal(x[key], y[key])
+def test_a_checkpoint_restores_the_link_state_of_running_episodes(legacy, tmp_path):
+    import io
+    import zipfile
+
+    from sb3_latentswarm.latent_ppo import LatentSwarmPPO
+    from sb3_latentswarm.presets import get_preset
+    from sb3_latentswarm.runs.checkpoints import SwarmCheckpointCallback, load_checkpoint
+
+    smoke = get_preset("smoke")
+    config = smoke.config.replace(outage_model="gilbert_elliott", p_fail=0.6, mean_outage_steps=6.0,
+                                  **({} if legacy else {"message_delay": 1, "message_delay_model": "uniform"}))
+    per_update = smoke.algo_kwargs["n_steps"] * smoke.n_envs * config.n_agents
+    model = LatentSwarmPPO("LatentSwarmPolicy", make_vec_env(smoke.n_envs, config=config, seed=3), seed=3,
+                           **smoke.algo_kwargs)
+    model.learn(per_update, callback=SwarmCheckpointCallback(per_update, tmp_path, keep=10))
+    checkpoint = tmp_path / f"checkpoint_{per_update}_steps.zip"
+    if legacy:  # a checkpoint written before the link models kept the Gilbert-Elliott chains as the core's _xi_state
+        with zipfile.ZipFile(checkpoint) as archive:
+            entries = {name: archive.read(name) for name in archive.namelist()}
+        arrays = dict(np.load(io.BytesIO(entries["arrays.npz"])))
+        arrays["env.core._xi_state"] = arrays.pop("env.core.link_model.xi_state")
+        buffer = io.BytesIO()
+        np.savez(buffer, **arrays)
+        entries["arrays.npz"] = buffer.getvalue()
+        with zipfile.ZipFile(checkpoint, "w", zipfile.ZIP_STORED) as archive:
+            for name, content in entries.items():
+                archive.writestr(name, content)
+    resumed = load_checkpoint(checkpoint, env=make_vec_env(smoke.n_envs, config=config, seed=99))
+    actions = np.random.default_rng(0).uniform(-1, 1, (6, model.env.num_envs, 4)).astype(np.float32)
+    for a in actions:  # the running episodes go on identically, link draws included
+        first, again = model.env.step(a)[0], resumed.env.step(a)[0]
+        assert first.keys() == again.keys() and ("link_age" in first) == (not legacy)
+        for key in first:
+            np.testing.assert_array_equal(first[key], again[key])
 
 
 def test_the_policy_trains_on_delayed_links_and_resumes_exactly(tmp_path):

@@ -6,10 +6,10 @@ with one epoch, i.e. ``--minibatches`` minibatches per call. Per minibatch (the 
 minibatches, so the once-per-update work of ``train`` is shared out):
 
 * ``aten ops``: aten operators dispatched, forward and backward and optimizer (a ``TorchDispatchMode`` counter);
-* ``syncs``: reads of a tensor's value by the host (``.item()``, ``float()``, ``bool()``, ``int()``, ``.tolist()``,
-  ``.cpu()``, ``.numpy()``; a ``TorchFunctionMode`` counter): each is a device synchronization on a GPU.
-  ``--sites`` lists where they happen. Reads inside ``torch.optim`` are not counted: Adam's step counters live on the
-  host (``capturable=False``), reading them is no device sync;
+* ``syncs``: host syncs with the GPU's semantics (``benchmarks/_syncs.py``): reads of a tensor's value by the host
+  (``.item()``, ``float()``, ``bool()``, ``int()``, ``.tolist()``, ``.cpu()``, ``.numpy()``) and data-dependent
+  shapes, each a device synchronization on a GPU. ``--sites`` lists where they happen. Reads inside ``torch.optim``
+  are not counted: Adam's step counters live on the host (``capturable=False``), reading them is no device sync;
 * ``CPU s``: per-thread CPU seconds (``time.thread_time``) of the training call, median over ``--repeats`` calls;
 * ``recomp``: of these, the recomputation of the old log-probabilities that ``train`` does first under autocast
   (``LatentSwarmPPO.recompute_old_log_probs``, timed alone): once per update, i.e. shared by ``n_epochs`` epochs of
@@ -36,7 +36,6 @@ import collections
 import inspect
 import json
 import math
-import os
 import pathlib
 import statistics
 import sys
@@ -64,16 +63,14 @@ if __name__ == "__main__":  # --help and argument errors answer here, before the
     build_parser().parse_args()
 
 import torch as th  # noqa: E402
-from torch.overrides import TorchFunctionMode  # noqa: E402
 from torch.utils._python_dispatch import TorchDispatchMode  # noqa: E402
 
 from sb3_latentswarm import LatentSwarmPPO, make_vec_env  # noqa: E402
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))  # the shared helper, also when loaded by path (tests)
 from _compare import alternate  # noqa: E402
+from _syncs import SyncCounter  # noqa: E402
 
-SYNC_METHODS = ("item", "__float__", "__bool__", "__int__", "__index__", "tolist", "cpu", "numpy")
-"""Tensor methods that hand a tensor's value to the host."""
 PRESET = "preset"
 """The ``--autocast`` variant that keeps the preset's own setting."""
 
@@ -90,29 +87,13 @@ class OpCounter(TorchDispatchMode):
         return func(*args, **(kwargs or {}))
 
 
-class SyncCounter(TorchFunctionMode):
-    """Counts host reads of tensor values (:data:`SYNC_METHODS`), by call site (``file:line``)."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.sites: collections.Counter[str] = collections.Counter()
-        self._last_cpu: int | None = None
-
-    def __torch_function__(self, func, types, args=(), kwargs=None):  # noqa: ANN001 - torch's protocol
-        name = getattr(func, "__name__", "")
-        result = func(*args, **(kwargs or {}))
-        if name in SYNC_METHODS and not (name == "numpy" and args and id(args[0]) == self._last_cpu):
-            frame = sys._getframe(1)
-            if f"torch{os.sep}optim{os.sep}" not in frame.f_code.co_filename:
-                self.sites[f"{pathlib.Path(frame.f_code.co_filename).name}:{frame.f_lineno} {name}"] += 1
-        self._last_cpu = id(result) if name == "cpu" else None  # .cpu().numpy() is one transfer
-        return result
-
-
-def build(preset_name: str, minibatches: int, autocast: str | None = PRESET, seed: int = 0) -> LatentSwarmPPO:
+def build(
+    preset_name: str, minibatches: int, autocast: str | None = PRESET, seed: int = 0, device: str = "cpu"
+) -> LatentSwarmPPO:
     """A model of the preset with a collected rollout of ``minibatches`` minibatches, ready for ``train()``.
 
     :param autocast: ``LatentSwarmPPO``'s ``autocast``, or :data:`PRESET` for the preset's own setting
+    :param device: the torch device of the model (``benchmarks/gpu_check.py`` builds on ``cuda``)
     """
     from stable_baselines3.common.logger import configure
 
@@ -125,7 +106,7 @@ def build(preset_name: str, minibatches: int, autocast: str | None = PRESET, see
     if autocast != PRESET:  # (older packages, measured by --compare, have no autocast argument)
         kwargs["autocast"] = autocast
     env = make_vec_env(n_envs, config=preset.config, seed=seed)
-    model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=seed, device="cpu", **kwargs)
+    model = LatentSwarmPPO("LatentSwarmPolicy", env, seed=seed, device=device, **kwargs)
     model.set_logger(configure(None, []))
     _, callback = model._setup_learn(model.n_steps * model.n_envs, callback=None)
     callback.on_training_start(locals(), globals())
@@ -160,7 +141,7 @@ def measure(preset_name: str, autocasts: list[str | None], minibatches: int, rep
     for name, model in models.items():
         with OpCounter() as ops:
             model.train()
-        with SyncCounter() as syncs:
+        with SyncCounter(model.device) as syncs:
             model.train()
         rows[name] = {"ops": ops.ops, "syncs": syncs.sites, "cpu": [], "recompute": []}
     for _ in range(repeats):

@@ -6,9 +6,9 @@ The model is timed from outside (the algorithm's code is unchanged): the benchma
 policy's ``forward`` and ``predict_values`` during the rollout, ``Tensor.backward``, ``clip_grad_norm_`` and the
 optimizer's ``step``/``zero_grad`` during the training, and the model's ``collect_rollouts`` and ``train``. On CUDA
 each wrapper synchronizes the device before and after its range, so that asynchronous kernels count where they were
-launched. The first ``--warmup`` update is not timed; the first warm-up update runs under ``torch.profiler`` to count
-the host syncs (``aten::_local_scalar_dense``, which ``.item()``, ``float()`` and ``bool()`` of a tensor call;
-``aten::nonzero``; on CUDA also ``cudaStreamSynchronize``/``cudaDeviceSynchronize``) and the aten ops per minibatch.
+launched. The first ``--warmup`` update is not timed; the first warm-up update counts the host syncs with the GPU's
+semantics on any device (``benchmarks/_syncs.py``: reads of device values by the host and data-dependent shapes, not
+the optimizer's host-side step counters; by call site) and, under ``torch.profiler``, the aten ops per minibatch.
 The output format is documented in ``docs/benchmarks.md``.
 
 ``--compare REV --rounds R`` measures the package of git revision ``REV`` against the working tree's: each round runs
@@ -82,12 +82,14 @@ except ImportError:  # a package before the thread guard (measured by --compare)
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the shared helper, also when loaded by path (tests)
 from _compare import Run, alternate, check_revision  # noqa: E402
+from _syncs import SyncCounter  # noqa: E402
 
 RANGES = ("update", "rollout", "env", "policy", "rollout_other", "train", "train_forward", "backward", "optimizer")
 """Keys of ``seconds`` and ``cpu_seconds`` in the output (per update; see ``docs/benchmarks.md``)."""
 
 SYNC_OPS = ("aten::_local_scalar_dense", "aten::nonzero", "cudaStreamSynchronize", "cudaDeviceSynchronize")
-"""Profiler events that block the host until the device has computed a value."""
+"""Profiler events that may block the host (reported as ``profiler_events`` for reference only: on CPU they include
+reads of host-side values, e.g. Adam's step counters, that never wait on a device; the counts are :class:`SyncCounter`'s)."""
 
 
 class UpdateProfiler:
@@ -109,6 +111,7 @@ class UpdateProfiler:
         self._active: set[str] = set()  # ranges being timed now (a range called inside itself is timed once)
         self.profiled: set[str] = set()  # ranges run under torch.profiler (count_syncs)
         self.profiles: dict[str, Any] = {}  # range -> the profiler's key_averages of its last run
+        self.syncs: dict[str, SyncCounter] = {}  # range -> the host syncs of its last profiled run
 
     # ------------------------------------------------------------------ wrapping
     def _sync(self) -> None:
@@ -124,9 +127,10 @@ class UpdateProfiler:
                 activities = [th.profiler.ProfilerActivity.CPU]
                 if self.cuda:
                     activities.append(th.profiler.ProfilerActivity.CUDA)
-                with th.profiler.profile(activities=activities) as prof:
+                with th.profiler.profile(activities=activities) as prof, SyncCounter(self.model.device) as syncs:
                     yield
                 self.profiles[key] = prof.key_averages()
+                self.syncs[key] = syncs
             else:
                 yield
         finally:
@@ -202,12 +206,12 @@ _ORIGINAL_BACKWARD = th.Tensor.backward
 _ORIGINAL_CLIP = th.nn.utils.clip_grad_norm_
 
 
-def _sync_summary(events: Any) -> dict[str, Any]:
-    by_op = {e.key: int(e.count) for e in events if e.key in SYNC_OPS}
+def _sync_summary(events: Any, syncs: SyncCounter) -> dict[str, Any]:
     return {
-        "count": sum(by_op.values()),
+        "count": syncs.count,
+        "by_site": dict(syncs.sites.most_common()),
+        "profiler_events": {e.key: int(e.count) for e in events if e.key in SYNC_OPS},
         "seconds": sum(e.cpu_time_total for e in events if e.key in SYNC_OPS) / 1e6,
-        "by_op": by_op,
         "aten_ops": sum(int(e.count) for e in events if e.key.startswith("aten::")),
     }
 
@@ -220,7 +224,7 @@ def count_syncs(model: LatentSwarmPPO, timer: UpdateProfiler, per_update: int, f
         model.learn(per_update, reset_num_timesteps=first)
     finally:
         timer.profiled, timer.device_sync = set(), timer.cuda
-    rollout, train = _sync_summary(timer.profiles["rollout"]), _sync_summary(timer.profiles["train"])
+    rollout, train = (_sync_summary(timer.profiles[key], timer.syncs[key]) for key in ("rollout", "train"))
     minibatches = max(timer.minibatches, 1)
     train["minibatches"] = timer.minibatches
     train["per_minibatch"] = train["count"] / minibatches
@@ -232,6 +236,8 @@ def count_syncs(model: LatentSwarmPPO, timer: UpdateProfiler, per_update: int, f
         "rollout": rollout,
         "train": train,
         "measured_in": "the first warm-up update, under torch.profiler (its times are not in 'seconds')",
+        "counted": "host syncs with the GPU's semantics (benchmarks/_syncs.py): reads of device values by the host and "
+                   "data-dependent shapes, not reads inside torch.optim (its step counters live on the host)",
     }
 
 
@@ -364,7 +370,9 @@ def print_report(result: dict[str, Any]) -> None:
         rollout, train = syncs["rollout"], syncs["train"]
         print(f"host syncs per update: {syncs['per_update']} (rollout {rollout['count']}, {rollout['per_step']:.1f} per "
               f"step, {rollout['seconds']:.3f} s; train {train['count']}, {train['per_minibatch']:.1f} per minibatch, "
-              f"{train['seconds']:.3f} s); train {train['by_op']}")
+              f"{train['seconds']:.3f} s)")
+        for site, count in list(train["by_site"].items())[:4]:
+            print(f"  train: {count / max(train['minibatches'], 1):.2f} per minibatch at {site}")
         print(f"aten ops (nested calls counted): {train['aten_ops_per_minibatch']:,.0f} per training minibatch, "
               f"{rollout['aten_ops_per_step']:,.0f} per rollout step (all slots)")
     print(f"peak memory: {result['peak_memory_bytes'] / 2**20:,.0f} MiB ({result['peak_memory_kind']})")

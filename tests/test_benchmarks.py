@@ -77,9 +77,41 @@ def test_update_time_counts_host_syncs(smoke_result):
     syncs = smoke_result[0]["host_syncs"]
     train, rollout = syncs["train"], syncs["rollout"]
     assert train["minibatches"] == 4
-    assert train["by_op"].get("aten::_local_scalar_dense", 0) >= 4  # at least one loss .item() per minibatch
-    assert syncs["per_update"] == train["count"] + rollout["count"]
+    assert syncs["per_update"] == train["count"] + rollout["count"] == sum(train["by_site"].values()) + sum(
+        rollout["by_site"].values())
+    # the one sync of a minibatch (the finiteness check of the loss) and a few per update for the logs; not Adam's step
+    # counters, which the profiler's aten::_local_scalar_dense counts (one per parameter tensor and minibatch)
+    assert train["minibatches"] <= train["count"] <= train["minibatches"] + 12, train["by_site"]
+    assert any(count == train["minibatches"] for count in train["by_site"].values()), train["by_site"]
+    assert not any("optim" in site for site in train["by_site"])
+    assert train["profiler_events"]["aten::_local_scalar_dense"] > train["count"] + 4 * 10
+    assert rollout["count"] >= 20  # the smoke preset's 20 steps each hand the actions to the host
     assert train["aten_ops_per_minibatch"] > 100 and rollout["aten_ops_per_step"] > 10
+
+
+def test_sync_counter_counts_device_reads_not_optimizer_counters():
+    syncs = load_benchmark("_syncs")
+    weight = th.nn.Parameter(th.ones(3))
+    optimizer = th.optim.Adam([weight])
+    x = th.arange(-2.0, 3.0)
+    with syncs.SyncCounter("cpu") as counter:
+        for _ in range(3):
+            optimizer.zero_grad()
+            (weight * x[:3]).sum().backward()
+            optimizer.step()  # Adam reads its host-side step counter (.item()) per parameter and step: no sync
+        assert counter.count == 0
+        x.sum().item()
+        bool(x.max() > 0)
+        x.cpu().numpy()  # one transfer
+        x[x > 0]  # a boolean mask: the host must learn the result's size
+        x.nonzero()
+        x[1:3] + x.sum()  # no sync: a slice and an op stay on the device
+    assert counter.count == 5, counter.sites
+    assert {site.split()[-1] for site in counter.sites} == {"item", "__bool__", "cpu", "__getitem__", "nonzero"}
+    with syncs.SyncCounter("cuda") as counter:  # on a GPU run a CPU tensor's value is already on the host
+        x.sum().item()
+        x.cpu()
+    assert counter.count == 0
 
 
 def test_update_time_leaves_torch_as_it_was(update_time, smoke_result):
@@ -194,3 +226,82 @@ def test_thread_variable_past_the_cores_warns(fresh_warning, monkeypatch):
     before = th.get_num_threads()
     with pytest.warns(RuntimeWarning, match="OMP_NUM_THREADS="):
         assert threads.apply_default_torch_threads() == before  # the user's variable is kept, only warned about
+
+
+def test_gpu_check_runs_its_cpu_mode_and_says_what_it_skipped(tmp_path, capsys, monkeypatch):
+    gpu_check = load_benchmark("gpu_check")
+    monkeypatch.setattr(th.cuda, "is_available", lambda: False)  # CI-safe mode also where a GPU is present
+    rows = gpu_check.main(["--preset", "smoke", "--repeats", "2", "--minibatches", "1", "--output", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert "CPU-only mode (CI-safe): CUDA skipped because" in out
+    assert "python benchmarks/gpu_check.py --output runs/gpu_check" in out  # the command to run on a GPU
+    by_name = {(row["check"], row["variant"]): row for row in rows}
+    assert list(by_name) == [("device tests", "pytest"), *((("train minibatch" if phase == "train" else "rollout step"),
+                             variant) for phase, variant in gpu_check.ORDER), ("update (estimate)", "best / eager")]
+    assert sorted(gpu_check.ORDER) == sorted((p, v) for p, variants in gpu_check.VARIANTS.items() for v in variants)
+    for (_check, variant), row in by_name.items():
+        if variant in ("pytest", "loss graph", "latent step", "step graph"):
+            assert row["status"] == "SKIPPED" and row["note"], row
+        else:
+            assert row["status"] == "ok" and row["device"] == "cpu" and row["preset"] == "smoke", row
+    for check in ("train minibatch", "rollout step"):  # eager against itself, with the same samples: exact
+        row = by_name[(check, "eager")]
+        assert row["max_diff"] == 0.0 and row["ms"] > 0 and row["x_eager"] == 1.0
+    table = (tmp_path / "table.md").read_text()
+    assert table.count("| SKIPPED |") == 4 and table.count("| ok |") == 3
+    assert (tmp_path / "table.csv").read_text().splitlines()[0] == ",".join(gpu_check.COLUMNS)
+    written = json.loads((tmp_path / "results.json").read_text())
+    assert written["device"] == "cpu" and "CUDA" in written["cuda_skipped"] and len(written["rows"]) == len(rows)
+
+
+def test_gpu_check_refuses_cuda_without_a_device(capsys, monkeypatch):
+    gpu_check = load_benchmark("gpu_check")
+    monkeypatch.setattr(th.cuda, "is_available", lambda: False)
+    monkeypatch.setattr(gpu_check.th.version, "cuda", "12.4")
+    with pytest.raises(SystemExit):
+        gpu_check.main(["--device", "cuda", "--output", "/nonexistent"])
+    assert "no CUDA device is visible" in capsys.readouterr().err
+
+
+def test_allocator_alternates_the_settings_and_reports_medians(monkeypatch, tmp_path):
+    allocator = load_benchmark("allocator")
+    calls = []
+
+    def fake_child(args, extra):
+        calls.append(dict(extra))
+        tuned = bool(extra)
+        return {"cpu_s": 1.0 if tuned else 1.5, "user_s": 0.9, "sys_s": 0.1 if tuned else 0.6,
+                "minor_faults": 10.0 if tuned else 1000.0, "peak_rss_mib": 1030.0 if tuned else 1000.0,
+                "end_rss_mib": 900.0}
+
+    monkeypatch.setattr(allocator, "run_child", fake_child)
+    summary = allocator.main(["--rounds", "3", "--json", str(tmp_path / "a.json")])
+    assert calls == [{}, allocator.TUNED, allocator.TUNED, {}, {}, allocator.TUNED]  # alternating order per round
+    assert summary["speedup"] == 1.5 and abs(summary["peak_rss_ratio"] - 1.03) < 1e-9
+    assert summary["round_speedups"] == [1.5, 1.5, 1.5]
+    assert json.loads((tmp_path / "a.json").read_text())["summary"]["medians"]["tuned"]["minor_faults"] == 10.0
+
+
+def test_allocator_child_runs_without_the_callers_allocator_variables(monkeypatch):
+    allocator = load_benchmark("allocator")
+    seen = {}
+
+    def fake_run(command, env, **kwargs):
+        seen.update(env)
+        return argparse.Namespace(returncode=0, stdout='{"cpu_s": 1}\n', stderr="")
+
+    monkeypatch.setenv("MALLOC_ARENA_MAX", "2")
+    monkeypatch.setattr(allocator.subprocess, "run", fake_run)
+    args = allocator.build_parser().parse_args([])
+    assert allocator.run_child(args, {"MALLOC_TRIM_THRESHOLD_": "5"}) == {"cpu_s": 1}
+    assert seen["MALLOC_TRIM_THRESHOLD_"] == "5" and "MALLOC_ARENA_MAX" not in seen and seen["OMP_NUM_THREADS"] == "1"
+
+
+def test_gpu_check_worker_subprocess_returns_its_row():
+    # the path every CUDA row takes (one subprocess per variant), exercised on the CPU
+    gpu_check = load_benchmark("gpu_check")
+    args = gpu_check.build_parser().parse_args(["--repeats", "1", "--minibatches", "1"])
+    row = gpu_check.run_worker("rollout", "eager", args, "smoke", "cpu", timeout=300)
+    assert row["status"] == "ok" and row["check"] == "rollout step" and row["max_diff"] == 0.0 and row["ms"] > 0, row
+    failed = gpu_check.safe_measure("rollout", "no such variant", args, "smoke", "cpu")  # what a worker prints
+    assert failed["status"] == "FAILED" and "unknown rollout variant" in failed["note"]

@@ -2,6 +2,20 @@
 independent baseline), named once: the observation keys, the layout of the proprioceptive vector e_t, and reading a
 vec-env or PettingZoo observation.
 
+Two layouts share the actor's keys and differ in the global state (:func:`observation_layout` tells them apart):
+
+==========  ======================================================  ===================================================
+            swarm env (:data:`SWARM_LAYOUT`)                          any ``ParallelEnv`` through the adapter
+==========  ======================================================  ===================================================
+actor       ``local_obs`` o_t, ``proprio`` e_t, ``link_row``          the same; ``proprio`` may be 0-dim; ``position``
+                                                                     (3,) only where the user gave positions
+p_t         the first 3 entries of ``proprio``                        ``position``, or nothing (0 columns)
+critic      ``swarm_proprio`` (N, 8), ``global_map`` (H, W)           ``global_state`` (S,) float
+referent    ``global_map``, the occupancy estimate M_hat_t            ``referent`` (R,) float, or ``global_state``
+==========  ======================================================  ===================================================
+
+The map decoder D_eta reconstructs the referent with the same loss in both (Eq. (3), a mean squared error).
+
 The batched core (:class:`~sb3_latentswarm.envs.batched_core.SwarmBatch`) produces the observations with these
 names; the policy and the planners read them with the same names. NumPy only, so the env does not import torch.
 """
@@ -10,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -26,6 +40,66 @@ STATE_OBS_KEYS = ("swarm_proprio", "global_map")
 #: Opt-in key (``SwarmConfig.message_delay > 0`` only), after ``link_row``: ``link_age[j]`` = how many steps late the
 #: message of peer ``j`` that arrived at this step is (0 = on time, and 0 where ``link_row[j] = 0``: nothing arrived).
 LINK_AGE_KEY = "link_age"
+
+
+#: Adapted envs: the agent's position p_t in the units of the user's link model (only when a position function is given).
+POSITION_KEY = "position"
+#: Adapted envs: the global state s_t the centralized critic reads (default ``env.state()``), flattened, float32.
+GLOBAL_STATE_KEY = "global_state"
+#: Adapted envs: the semantic referent D_eta reconstructs, when it is not the global state itself, flattened, float32.
+REFERENT_KEY = "referent"
+
+
+class ObservationLayout(NamedTuple):
+    """Which keys of a ``Dict`` observation space play which role (:func:`observation_layout`)."""
+
+    actor_keys: tuple[str, ...]
+    """What an agent reads at execution time (the latent step)."""
+    state_keys: tuple[str, ...]
+    """The global state, equal for every agent of a swarm (stored once per swarm); the critic and the map loss."""
+    critic_keys: tuple[str, ...]
+    """What the centralized critic reads, a subset of ``state_keys``."""
+    referent_key: str
+    """What the map decoder D_eta reconstructs (the target of L_map), one of ``state_keys``."""
+    position_key: str | None
+    """Where p_t comes from: ``"proprio"`` (its first :data:`POSITION_DIMS` entries), :data:`POSITION_KEY`, or ``None``
+    (the map update gets no position)."""
+
+    @property
+    def position_dims(self) -> int:
+        """Columns of p_t in the map update: :data:`POSITION_DIMS`, or 0 without a position."""
+        return 0 if self.position_key is None else POSITION_DIMS
+
+
+def observation_layout(observation_space: Any) -> ObservationLayout:
+    """The layout of a ``Dict`` observation space: :data:`SWARM_LAYOUT` when it holds ``global_map``, else the adapted
+    layout (``global_state``, optional ``referent`` and ``position``).
+
+    :raises TypeError: not a ``Dict`` space
+    :raises ValueError: a required key is missing, with what the space has
+    """
+    keys = getattr(observation_space, "spaces", None)
+    if not isinstance(keys, dict):
+        raise TypeError(
+            f"LatentSwarmPolicy needs a Dict observation space (sb3_latentswarm.make_vec_env for the swarm env, "
+            "sb3_latentswarm.envs.make_adapted_vec_env for any PettingZoo ParallelEnv), got "
+            f"{type(observation_space).__name__}"
+        )
+    if "global_map" in keys:
+        layout = SWARM_LAYOUT
+    else:
+        referent = REFERENT_KEY if REFERENT_KEY in keys else GLOBAL_STATE_KEY
+        state_keys = (GLOBAL_STATE_KEY,) if referent == GLOBAL_STATE_KEY else (GLOBAL_STATE_KEY, REFERENT_KEY)
+        position = POSITION_KEY if POSITION_KEY in keys else None
+        layout = ObservationLayout(ACTOR_OBS_KEYS + ((POSITION_KEY,) if position else ()), state_keys,
+                                   (GLOBAL_STATE_KEY,), referent, position)
+    missing = [key for key in layout.actor_keys + layout.state_keys if key not in keys]
+    if missing:
+        raise ValueError(
+            f"The observation space lacks the key(s) {missing} needed by LatentSwarmPolicy (has {list(keys)}); use "
+            "sb3_latentswarm.make_vec_env (swarm env) or sb3_latentswarm.envs.make_adapted_vec_env (any ParallelEnv)"
+        )
+    return layout
 
 
 def obs_keys(config: SwarmConfig) -> tuple[str, ...]:
@@ -47,6 +121,9 @@ PROPRIO_HEADING = 6
 """Heading chi in radians, in [-pi, pi); in e_t: chi / pi."""
 PROPRIO_ENERGY = 7
 """Energy b_t; in e_t: b_t / b_0."""
+
+#: The swarm env's layout: p_t from e_t, the critic on ({e_t^j}, M_hat_t), D_eta reconstructs M_hat_t.
+SWARM_LAYOUT = ObservationLayout(ACTOR_OBS_KEYS, STATE_OBS_KEYS, STATE_OBS_KEYS, "global_map", "proprio")
 
 
 def proprio_normalization(config: SwarmConfig) -> tuple[np.ndarray, np.ndarray]:

@@ -11,6 +11,8 @@ One module per job:
 :mod:`~sb3_latentswarm.evaluation.diagnostics`         per-episode map and message errors, dropout statistics
 :mod:`~sb3_latentswarm.evaluation.tables`              Table I's format (:func:`summarize`) and markdown tables
 :mod:`~sb3_latentswarm.evaluation.paper`               the paper's Table I and :func:`side_by_side`
+:mod:`~sb3_latentswarm.evaluation.adapted`             episodes on an adapted env in its own metrics
+                                                       (:func:`~sb3_latentswarm.evaluation.adapted.evaluate_adapted`)
 =====================================================  ========================================================
 """
 

@@ -36,7 +36,6 @@ from stable_baselines3.common.utils import FloatSchedule, obs_as_tensor, safe_me
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
 from sb3_latentswarm.config import SwarmConfig
-from sb3_latentswarm.envs.observations import STATE_OBS_KEYS
 from sb3_latentswarm.envs.vec_env import check_vec_normalize
 from sb3_latentswarm.latent_ppo.arguments import check_algorithm_values, fitting_chunk_length
 from sb3_latentswarm.latent_ppo.buffers import SwarmRolloutBuffer
@@ -369,7 +368,7 @@ class LatentSwarmPPO(RecurrentPPO):
             gamma=self.gamma,
             gae_lambda=self.gae_lambda,
             n_envs=self.n_envs,
-            swarm_keys=STATE_OBS_KEYS,  # the global state s_t, the same for every agent of a swarm: stored once per swarm
+            swarm_keys=self.policy.layout.state_keys,  # the global state s_t, equal within a swarm: stored once per swarm
         )
 
     def set_env(self, env: GymEnv, force_reset: bool = True) -> None:

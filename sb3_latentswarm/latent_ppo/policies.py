@@ -5,8 +5,11 @@ networks and the heads: the actor pi_xi(a | tau_t), a Gaussian (or opt-in tanh-s
 from tau_t (Sec. III-D); the map decoder D_eta(mu_t) -> M_hat_t (Sec. III-A); the critic V_omega(s_t),
 s_t = ({e_t^j}, M_hat_t), read from the global part of the observation (Sec. III-D).
 
-The actor side reads only ``local_obs``, ``proprio`` and ``link_row``; the critic only ``swarm_proprio`` and
-``global_map``. No parameter depends on the number of agents N, so a policy trained with N = 3 runs with N = 5.
+The actor side reads only ``local_obs``, ``proprio`` and ``link_row`` (and ``position`` where an adapted env has
+one); the critic only the global state: ``swarm_proprio`` and ``global_map`` on the swarm env, ``global_state`` on an
+env adapted by :func:`~sb3_latentswarm.envs.make_adapted_vec_env` (the two layouts of
+:func:`~sb3_latentswarm.envs.observations.observation_layout`). No parameter depends on the number of agents N, so a
+policy trained with N = 3 runs with N = 5.
 """
 
 from __future__ import annotations
@@ -23,13 +26,8 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 
-from sb3_latentswarm.envs.observations import (
-    ACTOR_OBS_KEYS,
-    POSITION_DIMS,
-    PROPRIO_POSITION,
-    STATE_OBS_KEYS,
-    as_vec_observation,
-)
+from sb3_latentswarm.envs.observations import POSITION_DIMS, as_vec_observation
+from sb3_latentswarm.latent_ppo.critic import build_critic, critic_output, mlp
 from sb3_latentswarm.latent_ppo.distributions import (  # noqa: F401  (smooth_log_std & co: also importable from here)
     TanhSquashedGaussianDistribution,
     UnvalidatedDiagGaussianDistribution,
@@ -107,18 +105,12 @@ class SequenceEvaluation(NamedTuple):
     has_message: th.Tensor
 
 
-def _mlp(sizes: list[int], activation: type[nn.Module] = nn.Tanh) -> nn.Sequential:
-    layers: list[nn.Module] = [nn.Linear(sizes[0], sizes[1])]
-    for i in range(1, len(sizes) - 1):
-        layers += [activation(), nn.Linear(sizes[i], sizes[i + 1])]
-    return nn.Sequential(*layers)
-
-
 class LatentSwarmPolicy(BasePolicy):
     """Actor-critic policy with per-UAV map, task and memory GRU states and latent message passing.
 
     :param observation_space: Dict space with keys ``local_obs``, ``proprio``, ``link_row``, ``swarm_proprio``,
-        ``global_map`` (as produced by :class:`~sb3_latentswarm.envs.SwarmReconEnv`)
+        ``global_map`` (as produced by :class:`~sb3_latentswarm.envs.SwarmReconEnv`), or the adapted layout of
+        :func:`~sb3_latentswarm.envs.make_adapted_vec_env` (``global_state`` instead of the last two)
     :param action_space: Box action space
     :param lr_schedule: learning rate schedule
     :param latent_dim: default size of every latent state (paper: d_mu = d_tau = d_rho = 512)
@@ -198,7 +190,7 @@ class LatentSwarmPolicy(BasePolicy):
                 raise TypeError(unexpected_kwargs_message(unexpected, LatentSwarmPolicy.__init__))
             if unused_kwargs.get("use_sde"):
                 raise ValueError("LatentSwarmPolicy does not support use_sde=True")
-        check_observation_space(observation_space)
+        self.layout = check_observation_space(observation_space)
         if not isinstance(action_space, spaces.Box):
             raise TypeError(f"LatentSwarmPolicy needs a Box action space, got {action_space}")
         check_choice("log_std_mapping", log_std_mapping, LOG_STD_MAPPINGS)
@@ -259,8 +251,10 @@ class LatentSwarmPolicy(BasePolicy):
 
         self.local_obs_dim = int(np.prod(space_shape(observation_space["local_obs"])))
         self.proprio_dim = int(space_shape(observation_space["proprio"])[-1])
-        self.map_shape = tuple(space_shape(observation_space["global_map"]))
+        self.map_shape = tuple(space_shape(observation_space[self.layout.referent_key]))  # the referent's shape
         self.n_cells = int(np.prod(self.map_shape))
+        self.position_dims = self.layout.position_dims
+        self.swarm_critic = "swarm_proprio" in self.layout.critic_keys
         self.action_dim = int(np.prod(action_space.shape))
         o_dim, e_dim, d_mu, d_tau, d_rho, d_msg = (
             self.local_obs_dim,
@@ -272,15 +266,15 @@ class LatentSwarmPolicy(BasePolicy):
         )
 
         # E_phi(mu_{t-1}; o_t, p_t, m^mu_t)
-        self.map_encoder = nn.GRUCell(o_dim + POSITION_DIMS + d_mu, d_mu)
+        self.map_encoder = nn.GRUCell(o_dim + self.position_dims + d_mu, d_mu)
         # D_eta(mu_t) -> M_hat_t
-        self.map_decoder = _mlp([d_mu, decoder_hidden, self.n_cells], nn.ReLU)
+        self.map_decoder = mlp([d_mu, decoder_hidden, self.n_cells], nn.ReLU)
         # F_theta(tau_{t-1}; o_t, e_t, mu_{t-1}, mbar_t)
         self.task_encoder = nn.GRUCell(o_dim + e_dim + d_mu + d_msg, d_tau)
         # G_psi(rho_{t-1}; tau_{t-1}, o_{t-1}, mbar_{t-1})
         self.memory_encoder = nn.GRUCell(d_tau + o_dim + d_msg, d_rho)
         # P_zeta(rho_t, o_t, e_t) -> mhat_t
-        self.message_predictor = _mlp([d_rho + o_dim + e_dim, predictor_hidden, d_msg])
+        self.message_predictor = mlp([d_rho + o_dim + e_dim, predictor_hidden, d_msg])
         # pi_xi(a | tau_t): mean and diagonal log std (raw outputs, bounded by bound_log_std)
         self.actor_trunk = nn.Sequential(nn.Linear(d_tau, actor_hidden), nn.Tanh())
         self.action_mean = nn.Linear(actor_hidden, self.action_dim)
@@ -288,10 +282,10 @@ class LatentSwarmPolicy(BasePolicy):
             self.action_log_std = nn.Linear(actor_hidden, self.action_dim)
         else:
             self.log_std = nn.Parameter(th.full((self.action_dim,), self._raw_log_std_init))
-        # V_omega(s_t), s_t = ({e_t^j}_j, M_hat_t): map encoder + mean-pooled proprio encoder, N-independent
-        self.critic_map = nn.Sequential(nn.Linear(self.n_cells, critic_hidden), nn.ReLU())
-        self.critic_agents = nn.Sequential(nn.Linear(e_dim, critic_hidden // 4), nn.ReLU())
-        self.critic_head = _mlp([critic_hidden + critic_hidden // 4, critic_hidden, 1], nn.ReLU)
+        # V_omega(s_t) (latent_ppo/critic.py): s_t = ({e_t^j}_j, M_hat_t) on the swarm env, global_state on an adapted one
+        state_dim = self.n_cells if self.swarm_critic else int(np.prod(space_shape(observation_space["global_state"])))
+        self.critic_map, self.critic_agents, self.critic_head = build_critic(
+            state_dim, e_dim if self.swarm_critic else None, critic_hidden)
         self.value_normalizer = ValueNorm(beta=value_norm_beta) if self.normalize_value else None
         gaussian: type[DiagGaussianDistribution] = (
             TanhSquashedGaussianDistribution if squashed else UnvalidatedDiagGaussianDistribution
@@ -317,7 +311,7 @@ class LatentSwarmPolicy(BasePolicy):
             nn.init.orthogonal_(self.action_log_std.weight, gain=0.01)
             nn.init.constant_(self.action_log_std.bias, self._raw_log_std_init)
         value_head = self.critic_head[-1]
-        assert isinstance(value_head, nn.Linear)  # _mlp ends with a Linear layer
+        assert isinstance(value_head, nn.Linear)  # mlp ends with a Linear layer
         nn.init.orthogonal_(value_head.weight, gain=1.0)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
@@ -395,10 +389,19 @@ class LatentSwarmPolicy(BasePolicy):
             keep=(1.0 - episode_starts.float()).unsqueeze(-1),
             local_obs=obs["local_obs"].float().flatten(episode_starts.dim()),
             proprio=proprio,
-            position=proprio[..., PROPRIO_POSITION],
+            position=self.map_position(obs, proprio),
             link_mask=link_mask,
             has_message=(link_row.sum(-1) > 0),
         )
+
+    def map_position(self, obs: dict[str, th.Tensor], proprio: th.Tensor) -> th.Tensor:
+        """p_t for the map update (:attr:`layout`'s ``position_key``): the first 3 entries of e_t (the swarm env), the
+        ``position`` key (an adapted env with positions), or 0 columns, (..., B, 3 or 0)."""
+        if self.layout.position_key == "proprio":
+            return proprio[..., :POSITION_DIMS]
+        if self.layout.position_key is None:
+            return proprio[..., :0]
+        return obs[self.layout.position_key].float()
 
     def recurrent_step(self, inputs: StepInputs, state: LatentState) -> StepOutput:
         """The latent updates of one step (Sec. III), under the policy's :attr:`autocast` (compiled after
@@ -516,7 +519,8 @@ class LatentSwarmPolicy(BasePolicy):
     @property
     def critic_parameters(self) -> list[nn.Parameter]:
         """Parameters of V_omega only (they read the global state, nothing else reads them)."""
-        return [p for module in (self.critic_map, self.critic_agents, self.critic_head) for p in module.parameters()]
+        modules = (self.critic_map, self.critic_agents, self.critic_head)
+        return [p for module in modules if module is not None for p in module.parameters()]
 
     def predict_values(self, obs: dict[str, th.Tensor]) -> th.Tensor:
         """V_omega(s_t) in return units for every slot, (B, 1) (denormalized when the critic learns normalized values)."""
@@ -524,17 +528,9 @@ class LatentSwarmPolicy(BasePolicy):
         return values if self.value_normalizer is None else self.value_normalizer.denormalize(values)
 
     def critic_output(self, obs: dict[str, th.Tensor]) -> th.Tensor:
-        """The critic's raw output for every slot, (B, 1); computed once per swarm and broadcast to its agents."""
-        swarm_proprio = obs["swarm_proprio"]  # (B, N, e_dim)
-        n_agents = swarm_proprio.shape[-2]
-        batch_shape = swarm_proprio.shape[:-2]
-        # each swarm's global state (repeated for its agents) is selected before the float conversion
-        flat_proprio = swarm_proprio.reshape(-1, n_agents, n_agents, self.proprio_dim)[:, 0].float()  # (n_swarms, N, e_dim)
-        flat_map = obs["global_map"].reshape(-1, n_agents, self.n_cells)[:, 0].float()  # (n_swarms, n_cells)
-        with self.latent_autocast():
-            features = th.cat([self.critic_map(flat_map), self.critic_agents(flat_proprio).mean(dim=1)], dim=-1)
-            values = self.critic_head(features).float()  # (n_swarms, 1)
-        return values.repeat_interleave(n_agents, dim=0).reshape(*batch_shape, 1)
+        """The critic's raw output for every slot, (B, 1); computed once per swarm and broadcast to its agents
+        (:func:`~sb3_latentswarm.latent_ppo.critic.critic_output`)."""
+        return critic_output(self, obs)
 
     def decode_map(self, map_state: th.Tensor) -> th.Tensor:
         """D_eta(mu_t): the reconstruction of M_hat_t, flattened row-major, float32 (computed under :attr:`autocast`).
@@ -581,7 +577,7 @@ class LatentSwarmPolicy(BasePolicy):
         # one autocast region for the sequence (with autocast="bf16"): each weight is cast to bf16 once, not per step
         with self.latent_autocast():
             task_state, map_state, received, predicted, has_message = self._replay_latent(obs, initial_state, episode_starts)
-            critic_obs = {key: obs[key].flatten(0, 1) for key in STATE_OBS_KEYS}
+            critic_obs = {key: obs[key].flatten(0, 1) for key in self.layout.critic_keys + ("link_row",)}
             values = self.critic_output(critic_obs).view(n_steps, -1)
             map_reconstruction = self.decode_map(map_state)
         # the action heads and log-probabilities in float32
@@ -614,7 +610,7 @@ class LatentSwarmPolicy(BasePolicy):
         """tau_t, mu_t, m_t, mhat_t (T, B, dim each) and has_message (T, B) of time-major sequences (in the caller's
         autocast region)."""
         # what does not depend on the recurrence is prepared for all T steps at once
-        inputs = self.step_inputs({key: obs[key] for key in ACTOR_OBS_KEYS}, episode_starts)
+        inputs = self.step_inputs({key: obs[key] for key in self.layout.actor_keys}, episode_starts)
         if self.chunked_replay:
             return self._replay_latent_sequence(inputs, state)
         return self._replay_latent_steps(inputs, state)
@@ -670,9 +666,9 @@ class LatentSwarmPolicy(BasePolicy):
         :param deterministic: use the mean action
         :return: actions (clipped to the action space) and the new state, a :class:`LatentState` of numpy arrays
         """
-        observation, agent_names = as_vec_observation(observation, ACTOR_OBS_KEYS, "LatentSwarmPolicy")
+        observation, agent_names = as_vec_observation(observation, self.layout.actor_keys, "LatentSwarmPolicy")
         self.set_training_mode(False)
-        obs_tensor = {key: th.as_tensor(observation[key], device=self.device) for key in ACTOR_OBS_KEYS}
+        obs_tensor = {key: th.as_tensor(observation[key], device=self.device) for key in self.layout.actor_keys}
         if obs_tensor["local_obs"].dim() == len(space_shape(self.observation_space["local_obs"])):
             raise ValueError("predict needs a batch of whole swarms (leading slot dimension), got a single observation")
         n_slots = obs_tensor["local_obs"].shape[0]

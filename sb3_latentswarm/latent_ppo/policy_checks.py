@@ -9,12 +9,13 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from sb3_latentswarm.envs.observations import ACTOR_OBS_KEYS, STATE_OBS_KEYS
+from sb3_latentswarm.envs.observations import ACTOR_OBS_KEYS, STATE_OBS_KEYS, ObservationLayout, observation_layout
 
 __all__ = ["REQUIRED_KEYS", "check_log_std_bounds", "check_observation_space", "space_shape", "unexpected_kwargs_message"]
 
 REQUIRED_KEYS = ACTOR_OBS_KEYS + STATE_OBS_KEYS
-"""The observation keys the policy reads: the actor's and the critic's."""
+"""The observation keys the policy reads on the swarm env: the actor's and the critic's (adapted envs:
+:func:`~sb3_latentswarm.envs.observations.observation_layout`)."""
 
 
 SB3_POLICY_KWARGS = {
@@ -57,17 +58,11 @@ def space_shape(space: spaces.Space) -> tuple[int, ...]:
     return space.shape
 
 
-def check_observation_space(observation_space: spaces.Space) -> None:
-    """Raise a clear error when the observation space lacks what the latent-swarm policy reads."""
-    if not isinstance(observation_space, spaces.Dict):
-        raise TypeError(
-            f"LatentSwarmPolicy needs a Dict observation space with keys {list(REQUIRED_KEYS)} "
-            f"(use sb3_latentswarm.make_vec_env), got {type(observation_space).__name__}"
-        )
-    missing = [key for key in REQUIRED_KEYS if key not in observation_space.spaces]
-    if missing:
-        raise ValueError(
-            f"The observation space lacks the key(s) {missing} needed by LatentSwarmPolicy "
-            f"(has {list(observation_space.spaces)}); use sb3_latentswarm.make_vec_env"
-        )
-
+def check_observation_space(observation_space: spaces.Space) -> ObservationLayout:
+    """Raise a clear error when the observation space lacks what the latent-swarm policy reads; return its layout."""
+    layout = observation_layout(observation_space)
+    assert isinstance(observation_space, spaces.Dict)  # observation_layout raised otherwise
+    for key in layout.actor_keys + layout.state_keys:
+        if not isinstance(observation_space[key], spaces.Box):
+            raise TypeError(f"LatentSwarmPolicy needs Box spaces; observation {key!r} is {observation_space[key]}")
+    return layout

@@ -37,18 +37,19 @@ class NonFiniteLossError(FloatingPointError):
     """A loss term or a parameter became NaN or infinite during training; the message names the update and the term."""
 
 
-def auxiliary_losses(evaluation: SequenceEvaluation, global_map: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+def auxiliary_losses(evaluation: SequenceEvaluation, referent: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
     """The self-supervised terms of the joint loss.
 
     Both are averaged per element rather than summed (see the paper-to-code table): a sum over the 2500 cells would
     make c2 = 5 swamp the PPO terms under the global gradient-norm clip.
 
     :param evaluation: outputs of :meth:`LatentSwarmPolicy.evaluate_sequences`, time-major (T, B, ...)
-    :param global_map: M_hat_t for every agent-step, (T, B, H, W)
+    :param referent: what D_eta reconstructs for every agent-step: M_hat_t (T, B, H, W) on the swarm env, an adapted
+        env's referent (T, B, R)
     :return: (L_map, L_pred)
     """
     # Eq. (3): L_map = 1/(NT) sum_i sum_t ||D(mu_t^i) - M_hat_t||^2
-    map_loss = ((evaluation.map_reconstruction - global_map.float().flatten(2)) ** 2).mean()
+    map_loss = ((evaluation.map_reconstruction - referent.float().flatten(2)) ** 2).mean()
     # Eq. (4): L_pred = mean over t in T_comm^i of ||m_t^i - mhat_t^i||^2; the received m is a target (no gradient)
     pred_error = ((evaluation.predicted_message - evaluation.received_message.detach()) ** 2).mean(-1)
     comm = evaluation.has_message.float()
@@ -92,7 +93,8 @@ def minibatch_losses(
     else:
         value_loss = ((returns - values) ** 2).mean()
 
-    map_loss, pred_loss = auxiliary_losses(evaluation, rollout_data.observations["global_map"])
+    referent = rollout_data.observations[model.policy.layout.referent_key]
+    map_loss, pred_loss = auxiliary_losses(evaluation, referent)
     return {
         "policy": policy_loss,
         "value": value_loss,

@@ -57,7 +57,7 @@ def parse_args() -> Args:
             parser.add_argument(name, action="store_true", help=spec.metadata["help"])
         else:
             kind = {"int": int, "float": float}.get(str(spec.type), str)
-            parser.add_argument(name, type=kind, default=spec.default, help=spec.metadata["help"])
+            parser.add_argument(name, type=kind, default=spec.default, help=f"{spec.metadata['help']} (default: %(default)s)")
     args = Args(**vars(parser.parse_args()))
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
@@ -95,7 +95,8 @@ def main() -> None:
         print(f"exported {uav_model} ({check.size_bytes / 1e6:.2f} MB, onnxruntime vs torch {check.max_abs_error:.1e})")
     seeds = [args.seed + k for k in range(args.episodes)]
     mode = "mean" if args.deterministic else "sampled"
-    print(f"{config.n_agents} UAV processes ({args.runtime}), {args.episodes} episodes, seeds {seeds[0]}..{seeds[-1]}, "
+    print(f"{config.n_agents} UAV processes ({args.runtime}), "
+          f"{args.episodes} episode{'s' if args.episodes > 1 else ''}, seeds {seeds[0]}..{seeds[-1]}, "
           f"{mode} actions, deadline {args.deadline:g} s")
     with ProcessSwarm(uav_model, config.n_agents, port=args.port, uav_port=args.uav_port) as swarm:
         print(f"simulator on 127.0.0.1:{swarm.port}, UAVs on {[address[1] for address in swarm.addresses if address]}")

@@ -53,8 +53,10 @@ def make_link_model(config: SwarmConfig, n_swarms: int) -> LinkModel:
         base = A2ALinks(config, n_swarms)
     elif config.link_model == "distance":
         base = DistanceLinks(config, n_swarms, config.link_range)
-    else:
+    elif config.link_model == "outage":
         base = OutageLinks(config, n_swarms)
+    else:  # SwarmConfig validates the value: a new model needs its branch here
+        raise ValueError(f"link_model {config.link_model!r} has no branch in make_link_model")
     if config.message_delay == 0:
         return base
     return DelayedLinks(base, config.message_delay, config.message_delay_model, config.message_expiry)

@@ -39,6 +39,18 @@ from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default=None, help="also write the report to this file")
+    parser.add_argument("--only", default=None, help="run only the cases whose name contains this text")
+    return parser
+
+
+if __name__ == "__main__":
+    build_parser().parse_args()  # --help answers before torch loads
+
+
 import numpy as np  # noqa: E402
 import torch as th  # noqa: E402
 
@@ -860,10 +872,7 @@ def run_case(case: Case, base: list[Path], root: Path, index: int) -> tuple[str,
 
 
 def main(argv: list[str] | None = None) -> dict[str, int]:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default=None, help="also write the report to this file")
-    parser.add_argument("--only", default=None, help="run only the cases whose name contains this text")
-    args = parser.parse_args(argv)
+    args = build_parser().parse_args(argv)
     started = time.time()
     with tempfile.TemporaryDirectory(prefix="hostile-") as tmp:
         root = Path(tmp) / "sandbox"

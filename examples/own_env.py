@@ -24,11 +24,6 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from sb3_latentswarm import LatentSwarmPPO
-from sb3_latentswarm.envs import LinkSpec, make_adapted_vec_env
-from sb3_latentswarm.envs.mpe import mpe_positions, simple_spread_metrics
-from sb3_latentswarm.evaluation.adapted import evaluate_adapted
-
 
 # start-rendezvous (docs/own_env.md includes from here)
 class Rendezvous(ParallelEnv):
@@ -91,14 +86,14 @@ def simple_spread(n_agents: int = 3, neighbors: int = 1, max_cycles: int = 25) -
                                          num_agent_neighbors=neighbors, num_landmark_neighbors=neighbors)
 
 
-LINKS = {
-    "full": LinkSpec(link_mode="full"),
-    "none": LinkSpec(link_mode="none"),
-    "outage": LinkSpec(link_model="outage", outage_model="gilbert_elliott", p_fail=0.5, mean_outage_steps=5),
-    "distance": LinkSpec(link_model="distance", link_range=0.8, p_fail=0.0),
-    "a2a": LinkSpec(link_model="a2a"),
+LINKS: dict[str, dict[str, Any]] = {
+    "full": dict(link_mode="full"),
+    "none": dict(link_mode="none"),
+    "outage": dict(link_model="outage", outage_model="gilbert_elliott", p_fail=0.5, mean_outage_steps=5),
+    "distance": dict(link_model="distance", link_range=0.8, p_fail=0.0),
+    "a2a": dict(link_model="a2a"),
 }
-"""The link models of the example, by name; ``link_range`` in the env's position units."""
+"""The link models of the example, by name, as ``LinkSpec`` fields; ``link_range`` in the env's position units."""
 
 
 @dataclasses.dataclass
@@ -118,11 +113,14 @@ class Args:
 
 def adapted_env(args: Args, n_envs: int, seed: int):
     """The adapted VecEnv of ``args.env`` with the link model ``args.link``."""
+    from sb3_latentswarm.envs import LinkSpec, make_adapted_vec_env  # here, so that --help answers without torch
+    from sb3_latentswarm.envs.mpe import mpe_positions, simple_spread_metrics
+
+    link_model = LinkSpec(**LINKS[args.link])
     if args.env == "mpe":
-        return make_adapted_vec_env(simple_spread, n_envs, link_model=LINKS[args.link], position_fn=mpe_positions,
+        return make_adapted_vec_env(simple_spread, n_envs, link_model=link_model, position_fn=mpe_positions,
                                     metrics_fn=simple_spread_metrics, seed=seed)
-    return make_adapted_vec_env(Rendezvous, n_envs, link_model=LINKS[args.link], position_fn=rendezvous_positions,
-                                seed=seed)
+    return make_adapted_vec_env(Rendezvous, n_envs, link_model=link_model, position_fn=rendezvous_positions, seed=seed)
 
 
 def main(argv: list[str] | None = None) -> dict[str, float]:
@@ -130,6 +128,9 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     for field in dataclasses.fields(Args):
         parser.add_argument(f"--{field.name.replace('_', '-')}", type=type(field.default), default=field.default)
     args = Args(**vars(parser.parse_args(argv)))
+    from sb3_latentswarm import LatentSwarmPPO
+    from sb3_latentswarm.evaluation.adapted import evaluate_adapted
+
     env = adapted_env(args, args.n_envs, args.seed)
     n_agents = env.get_attr("n_agents", indices=0)[0]
     episode_steps = 25 if args.env == "mpe" else 20

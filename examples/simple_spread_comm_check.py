@@ -22,18 +22,15 @@ import json
 import os
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from sb3_latentswarm import LatentSwarmPPO
-from sb3_latentswarm.envs import LinkSpec, make_adapted_vec_env
-from sb3_latentswarm.envs.mpe import mpe_positions, simple_spread_metrics
-from sb3_latentswarm.evaluation.adapted import evaluate_adapted
-
-CONDITIONS = {
-    "links": LinkSpec(link_model="outage", p_fail=0.0),
-    "no_links": LinkSpec(link_mode="none"),
+CONDITIONS: dict[str, dict[str, Any]] = {
+    "links": dict(link_model="outage", p_fail=0.0),
+    "no_links": dict(link_mode="none"),
 }
+"""The two learners' link models, as ``LinkSpec`` fields."""
 
 
 @dataclasses.dataclass
@@ -63,18 +60,24 @@ class Args:
 def env_factory(args: Args, condition: str):
     from mpe2 import simple_spread_v3
 
+    from sb3_latentswarm.envs import LinkSpec, make_adapted_vec_env  # here, so that --help answers without torch
+    from sb3_latentswarm.envs.mpe import mpe_positions, simple_spread_metrics
+
     def make_env():
         return simple_spread_v3.parallel_env(N=args.n_agents, continuous_actions=True, max_cycles=args.max_cycles,
                                              num_agent_neighbors=args.neighbors, num_landmark_neighbors=args.neighbors)
 
     def make(n_envs: int, seed: int):
-        return make_adapted_vec_env(make_env, n_envs, link_model=CONDITIONS[condition], position_fn=mpe_positions,
+        return make_adapted_vec_env(make_env, n_envs, link_model=LinkSpec(**CONDITIONS[condition]), position_fn=mpe_positions,
                                     metrics_fn=simple_spread_metrics, seed=seed)
 
     return make
 
 
 def train_and_evaluate(args: Args, condition: str, seed: int) -> dict:
+    from sb3_latentswarm import LatentSwarmPPO
+    from sb3_latentswarm.evaluation.adapted import evaluate_adapted
+
     make = env_factory(args, condition)
     env = make(args.n_envs, seed)
     steps = 2 * args.max_cycles

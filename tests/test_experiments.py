@@ -423,7 +423,8 @@ def test_a_sweep_trial_killed_mid_way_resumes_from_its_checkpoint(tmp_path):
     stopped = read_checkpoint_state(latest_checkpoint(work / "checkpoints"))["num_timesteps"]
 
     result = run_sweep_command("--preset", "smoke", "--seeds", "1", "--variant", "proposed", "--eval-episodes", "1",
-                               "--output", str(output), "--resume", "--verbose", "0")
+                               "--output", str(output), "--resume", "--verbose", "0",
+                               "--deterministic")  # as the spec above was built (SweepSpec's default)
     assert result.returncode == 0, result.stderr[-3000:]
     record = json.loads((output / "trials" / trial["trial_id"] / "trial.json").read_text())
     assert 0 < record["resumed_from_agent_steps"] == stopped < record["trained_agent_steps"]

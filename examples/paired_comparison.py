@@ -4,7 +4,8 @@ Regenerates the verdict table of a pre-registered test (e.g. ``docs/results/coor
 other learner S and evaluation cell, the paired differences ``reference(seed k) - S(seed k)`` over the training seeds
 both finished, their mean, and a 95 % percentile-bootstrap interval over seeds (our NumPy port of rliable's method,
 :func:`sb3_latentswarm.experiments.aggregate.stratified_bootstrap_ci`, 10,000 replicates, generator seed 0). A cell
-is **met** when the mean difference is at least ``--threshold`` points and the interval's lower end is above 0.
+is **met** when the mean difference is at least ``--threshold`` points and the interval's lower end is above 0; fewer
+than ``--min-seeds`` finished pairs (3) give no verdict.
 
     python examples/paired_comparison.py --scores runs/sweeps/coordination_heavy_dropout/scores.csv \
         --reference proposed --against zero_substitute hold_last --cells table1 pf0.9 pf1 --threshold 3 \
@@ -39,6 +40,8 @@ class Args:
     """Points the mean paired difference must reach."""
     output: Path | None = None
     """Where to write the markdown table (atomically); printed in any case."""
+    min_seeds: int = 3
+    """Fewer finished pairs than this give no verdict (the interval over one or two seeds says nothing)."""
 
 
 def parse_args(argv: list[str] | None = None) -> Args:
@@ -51,11 +54,14 @@ def parse_args(argv: list[str] | None = None) -> Args:
     parser.add_argument("--metric", default="coverage", help="score column (default coverage, in %%)")
     parser.add_argument("--threshold", type=float, default=3.0, help="points the mean difference must reach (3)")
     parser.add_argument("--output", type=Path, default=None, help="write the markdown table here")
+    parser.add_argument("--min-seeds", type=int, default=3, help="fewer finished pairs give no verdict (default 3)")
     ns = parser.parse_args(argv)
     if not ns.scores.is_file():
         parser.error(f"--scores: {ns.scores} is not a file")
+    if ns.min_seeds < 2:
+        parser.error(f"--min-seeds must be >= 2, got {ns.min_seeds}")
     return Args(ns.scores, ns.reference, tuple(ns.against), tuple(ns.cells), ns.condition, ns.metric, ns.threshold,
-                ns.output)
+                ns.output, ns.min_seeds)
 
 
 def paired_table(args: Args) -> str:
@@ -86,10 +92,12 @@ def paired_table(args: Args) -> str:
             difference = (pairs[args.reference] - pairs[other]).to_numpy()
             point, low, high = stratified_bootstrap_ci(difference, mean)
             met = point >= args.threshold and low > 0.0
+            too_few = len(pairs) < args.min_seeds
+            verdict = f"no verdict (< {args.min_seeds} seeds)" if too_few else ("met" if met else "not met")
             seeds = ",".join(str(int(s)) for s in pairs.index)
             rows.append(
                 f"| {other} | {cell} | {len(pairs)} ({seeds}) | {pairs[args.reference].mean():.2f} | "
-                f"{pairs[other].mean():.2f} | {point:+.2f} [{low:+.2f}, {high:+.2f}] | {'met' if met else 'not met'} |"
+                f"{pairs[other].mean():.2f} | {point:+.2f} [{low:+.2f}, {high:+.2f}] | {verdict} |"
             )
     return "\n".join(rows) + "\n"
 

@@ -39,3 +39,11 @@ def test_paired_differences_and_verdicts(tmp_path, capsys):
     assert rows[("hold_last", "table1")].endswith("| not met |") and "-1.00 [-1.00, -1.00]" in rows[("hold_last", "table1")]
     # pf1 has no finished pair for either learner
     assert rows[("zero_substitute", "pf1")].endswith("| not tested |")
+
+
+def test_fewer_seeds_than_the_minimum_give_no_verdict(tmp_path, capsys):
+    module = runpy.run_path(str(SCRIPT))
+    module["main"](["--scores", str(_scores(tmp_path)), "--against", "zero_substitute", "--cells", "table1",
+                    "--min-seeds", "4"])
+    row = capsys.readouterr().out.splitlines()[2]
+    assert "+5.00" in row and row.endswith("| no verdict (< 4 seeds) |")

@@ -11,7 +11,7 @@ $(VENV)/.installed: setup.cfg pyproject.toml constraints-cpu.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PIP) install -q --upgrade pip
 	$(PIP) install -q -c constraints-cpu.txt torch==2.13.0 || $(PIP) install -q "torch>=2.1"
-	$(PIP) install -q -c constraints-cpu.txt -e ".[tests,plots,docs,sweep,deploy,mpe]"
+	$(PIP) install -q -c constraints-cpu.txt -e ".[tests,plots,docs,sweep,deploy,mpe,wandb]"
 	touch $@
 
 demo: $(VENV)/.installed

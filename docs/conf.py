@@ -61,11 +61,13 @@ html_css_files = ["custom.css"]  # wide tables wrap instead of being cut off
 # ---------------------------------------------------------------------------------------------- results
 DOCS_DIR = Path(__file__).resolve().parent
 RESULTS_DIR = DOCS_DIR / "results"
+# historical folders without a model file sit in docs/results/archive/ (docs/results/README.md, the folders' index)
+ARCHIVE = "archive"
 IMAGE_SUFFIXES = (".png", ".svg", ".gif", ".jpg")
 DATA_SUFFIXES = (".csv", ".json", ".txt", ".pdf")
 # results.md places each results folder with a line `<!-- results-folder: NAME -->` under a heading of its own, so the
 # page's order and titles are chosen by its author, not by the folders' alphabetical order.
-RESULTS_MARKER = re.compile(r"^<!-- results-folder: ([\w.-]+) -->$", re.MULTILINE)
+RESULTS_MARKER = re.compile(r"^<!-- results-folder: ((?:archive/)?[\w.-]+) -->$", re.MULTILINE)
 # What each plot that the scripts write shows; the first sentence of its caption in results.md (the second names the
 # run it comes from: the folder and the heading of its section).
 PLOT_CAPTIONS = {
@@ -86,7 +88,8 @@ PLOT_CAPTIONS = {
     "IQM across training seeds with 95 % stratified-bootstrap intervals.",
     "intervals_reached_90": "Share of episodes reaching 90 % coverage per evaluation set, condition and learner: IQM "
     "across training seeds with 95 % stratified-bootstrap intervals.",
-    "episode": "One evaluation episode (proposed condition): the UAVs, their links and the coverage map.",
+    "episode": "One evaluation episode (proposed condition): the UAVs, their links and the coverage map (since 0.2.0 a "
+    "legend beside the map names every colour, the condition, the episode seed and the way of acting).",
     "episode_trajectories": "The UAVs' trajectories in that episode (o: start, x: a UAV in dropout).",
 }
 # results.md places a figure itself (the claims' figures) with a MyST figure directive; the folder then leaves it out.
@@ -126,6 +129,7 @@ def _results_folder(folder: Path, section: str, placed_images: set[str]) -> list
     files = sorted(p for p in folder.iterdir() if p.is_file())
     markdown = [p for p in files if p.suffix.lower() == ".md" and p.name.lower() != "readme.md"]
     rel = folder.relative_to(DOCS_DIR).as_posix()
+    name = folder.relative_to(RESULTS_DIR).as_posix()
     images = [p for p in files if p.suffix.lower() in IMAGE_SUFFIXES and f"{rel}/{p.name}" not in placed_images]
     data = [p for p in files if p.suffix.lower() in DATA_SUFFIXES]
     if folder / "run.md" in markdown:
@@ -136,21 +140,32 @@ def _results_folder(folder: Path, section: str, placed_images: set[str]) -> list
     body = [line for path in markdown for line in [*_report_text(path), ""]]
     if body:
         names = " and ".join(f"<code>{path.name}</code>" for path in markdown)
-        parts += _collapsed(f"Report and tables ({names} of <code>docs/results/{folder.name}/</code>)", body)
+        parts += _collapsed(f"Report and tables ({names} of <code>docs/results/{name}/</code>)", body)
     figures: list[str] = []
     for path in images:
         what = PLOT_CAPTIONS.get(path.stem, path.stem.replace("_", " ").capitalize() + ".")
-        caption = f"{what} Run: `docs/results/{folder.name}/` ({section})."
+        caption = f"{what} Run: `docs/results/{name}/` ({section})."
         figures += [f"```{{figure}} {rel}/{path.name}", f":alt: {path.stem}", "", caption, "```", ""]
     if figures:
         parts += _collapsed(f"Figures ({len(images)})", figures)
     return parts
 
 
+def results_folders() -> list[str]:
+    """Every results folder, relative to ``docs/results/``: ``NAME`` for a current one, ``archive/NAME`` for an archived
+    one."""
+
+    def folders(parent: Path) -> list[Path]:
+        return [p for p in parent.iterdir() if p.is_dir() and not p.name.startswith((".", "_"))]
+
+    archived = [f"{ARCHIVE}/{p.name}" for p in folders(RESULTS_DIR / ARCHIVE)] if (RESULTS_DIR / ARCHIVE).is_dir() else []
+    return sorted([p.name for p in folders(RESULTS_DIR) if p.name != ARCHIVE] + archived)
+
+
 def _place_results(text: str) -> str:
     """Replace each results marker of ``results.md`` by its folder; a folder no marker places is a build warning."""
     placed = set(RESULTS_MARKER.findall(text))
-    present = sorted(p.name for p in RESULTS_DIR.iterdir() if p.is_dir() and not p.name.startswith((".", "_")))
+    present = results_folders()
     for name in sorted(placed - set(present)):
         logger.warning("results.md places docs/results/%s/, which does not exist", name, location="results")
     for name in sorted(set(present) - placed):

@@ -1,10 +1,10 @@
 """Continue training a saved LatentSwarmPPO (SB3's ``load`` + ``learn(reset_num_timesteps=False)``).
 
-This is how ``docs/results/fast_600_updates`` was made from the 300-update ``fast`` model (removed from the tree to
+This is how ``docs/results/archive/fast_600_updates`` was made from the 300-update ``fast`` model (removed from the tree to
 keep it light: ``git checkout 206f0d5 -- docs/results/fast/model.zip`` brings it back, optimizer state included):
 
     python examples/continue_training.py --model docs/results/fast/model.zip --preset fast \
-        --output docs/results/fast_600_updates/model.zip --env-seed 1
+        --output runs/fast_600_updates/model.zip --env-seed 1
 """
 
 from __future__ import annotations

@@ -9,12 +9,12 @@ the share of agent-steps in dropout, the mean dropout run length, and the substi
 against the mean of the peers' messages z_{t-1}^j, overall and by dropout depth (1, 2-5, 6-15, > 15 steps into the
 outage; columns of :mod:`sb3_latentswarm.evaluation.diagnostics`), with coverage and collisions beside them.
 Writes into ``--output``: ``episodes.csv`` (one row per episode), ``dropout_diagnostics.csv`` / ``.md`` (the table),
-``error_by_depth.png`` (the plot) and ``run.md``. How ``docs/results/coordination_dropout_diagnostics`` was made
+``error_by_depth.png`` (the plot) and ``run.md``. How ``docs/results/archive/coordination_dropout_diagnostics`` was made
 (its model is ``git checkout 206f0d5 -- docs/results/coordination/trials/proposed-seed0``, or the weight-only copy
 ``tests/data/models/coordination-proposed-seed0.zip``, which gives the same table):
 
     python examples/dropout_diagnostics.py --model docs/results/coordination/trials/proposed-seed0/model.zip \\
-        --episodes 20 --output docs/results/coordination_dropout_diagnostics
+        --episodes 20 --output docs/results/archive/coordination_dropout_diagnostics
 """
 
 from __future__ import annotations

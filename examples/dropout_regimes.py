@@ -32,7 +32,7 @@ Writes into ``--output``:
 - ``error_by_depth.png``: the substitute's message error by dropout depth, one panel per outage length;
 - ``run.md``: the command, commit, machine and what is in the folder.
 
-    python examples/dropout_regimes.py --episodes 100 --output docs/results/coordination_dropout_regimes
+    python examples/dropout_regimes.py --episodes 100 --output docs/results/archive/coordination_dropout_regimes
 """
 
 from __future__ import annotations
@@ -47,8 +47,9 @@ from pathlib import Path
 import numpy as np
 
 DEFAULT_MODELS = tuple(f"docs/results/coordination_round2/trials/proposed-seed{seed}/model.zip" for seed in range(5))
-"""The second round's committed ``proposed`` learners (training seeds 0-4). ``docs/results/coordination_dropout_regimes``
-was made with the first round's three squashed models (``git checkout 206f0d5 -- docs/results/actor_choice/models``)."""
+"""The second round's committed ``proposed`` learners (training seeds 0-4).
+``docs/results/archive/coordination_dropout_regimes`` was made with the first round's three squashed models
+(``git checkout 206f0d5 -- docs/results/actor_choice/models``)."""
 REGIME_CONDITIONS = ("proposed", "no_predictor", "hold_last", "no_memory")
 """The conditions compared in every regime (names of :data:`~sb3_latentswarm.evaluation.CONDITION_TABLE`)."""
 P_FAILS = (0.0, 0.15, 0.3, 0.5, 0.7, 0.9, 1.0)

@@ -11,7 +11,7 @@ PPO optimizes), on the same episode seeds. It writes into ``--output``:
 * ``learning_curve.png``: mean coverage against PPO updates per condition, with 95 % confidence bands of the mean
 * ``run.md``: command, commit, machine, models, seeds, wall time
 
-    python examples/learning_curve.py --preset fast --episodes 100 --output docs/results/fast_learning_curve \\
+    python examples/learning_curve.py --preset fast --episodes 100 --output docs/results/archive/fast_learning_curve \\
         --models docs/results/fast/model.zip docs/results/fast_600_updates/model.zip ...
 
 (those models left the tree after commit 206f0d5: ``git checkout 206f0d5 -- docs/results/fast/model.zip ...``).

@@ -7,7 +7,7 @@ memory zeroed (``no_memory``). Both ways of acting, mean and sampled, on the sam
 ``sustained_dropout.csv`` (per episode), ``sustained_dropout.md`` and ``run.md`` into ``--output``.
 
     python examples/sustained_dropout.py --model docs/results/fast_1800_updates/model.zip --preset fast \\
-        --output docs/results/fast_1800_updates_sustained_dropout
+        --output docs/results/archive/fast_1800_updates_sustained_dropout
 
 (that model left the tree after commit 206f0d5: ``git checkout 206f0d5 -- docs/results/fast_1800_updates/model.zip``).
 """

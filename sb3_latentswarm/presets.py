@@ -219,7 +219,8 @@ def format_settings(width: int = 100) -> str:
 
 MAPPO_TRAINING: dict[str, Any] = dict(normalize_value=True, value_loss="huber", grad_clip="per_group")
 """The MAPPO habits the CPU presets train with (docs/algorithm.md, "Training options"; measured in
-docs/results/training_options_fast/): the critic's gradient no longer scales down the actor's and the latent losses'."""
+docs/results/archive/training_options_fast/): the critic's gradient no longer scales down the actor's and the latent
+losses'."""
 BOUNDED_STD: dict[str, Any] = dict(log_std_bounds=(-5.0, 0.0), log_std_init=-0.5)
 """Policy std at most 1 (half the action box), initially 0.61: most sampled actions fall inside the box."""
 PAPER_ACTOR: dict[str, Any] = dict(action_distribution="gaussian", log_std_mapping="tanh")
@@ -227,8 +228,8 @@ PAPER_ACTOR: dict[str, Any] = dict(action_distribution="gaussian", log_std_mappi
 (``docs/algorithm.md``, "The actor"; ``log_std_mapping="clamp"`` is the bound of the models trained before it existed)."""
 ACTOR: dict[str, Any] = dict(action_distribution="squashed_gaussian", log_std_mapping="tanh")
 """The actor of the CPU presets (with :data:`MAPPO_TRAINING`): the tanh-squashed Gaussian, chosen by measurement on
-``coordination`` (docs/results/actor_choice/: with mean actions its collisions stay within 1.3x the sampled ones and its
-means never leave the box, where the Gaussian's mean actions collided 4.7x more than its samples). ``--set
+``coordination`` (docs/results/archive/actor_choice/: with mean actions its collisions stay within 1.3x the sampled ones
+and its means never leave the box, where the Gaussian's mean actions collided 4.7x more than its samples). ``--set
 action_distribution=gaussian`` trains the paper's Gaussian instead."""
 
 

@@ -1,9 +1,11 @@
 """Episode rendering: an animated GIF (or MP4) of one episode and a figure of the UAV trajectories.
 
 The frames come from ``SwarmReconEnv(render_mode="rgb_array")`` (map estimate, true obstacles not yet found, current
-footprints, UAVs, live links and a coverage bar); this module adds the UAV trails and a dropout marker (a red frame
-around the image at steps where some UAV received nothing) and writes the files with imageio and matplotlib. MP4
-needs the ``imageio-ffmpeg`` package (``pip install "sb3-latentswarm[video]"``); GIF needs nothing more.
+footprints, UAVs, live links and a coverage bar); this module adds the UAV trails, a dropout marker (a red border
+around the map at steps where some UAV received nothing) and a legend panel beside the map that names every colour
+and shows the step, the coverage and the collisions so far (:func:`legend_figure`), and writes the files with imageio
+and matplotlib. MP4 needs the ``imageio-ffmpeg`` package (``pip install "sb3-latentswarm[video]"``); GIF needs nothing
+more.
 """
 
 from __future__ import annotations
@@ -16,15 +18,26 @@ import numpy as np
 import torch as th
 
 from sb3_latentswarm.config import SwarmConfig
-from sb3_latentswarm.envs.swarm_recon import AGENT_COLOURS
+from sb3_latentswarm.envs.swarm_recon import AGENT_COLOURS, FOOTPRINT_TINT, RENDER_COLOURS
 
 ANIMATION_FORMATS = (".gif", ".mp4")
 _TRAIL_COLOURS = AGENT_COLOURS.astype(np.uint8)  # the env's palette: a UAV's trail has the colour of its square
+DROPOUT_BORDER = (220, 30, 30)
+"""RGB colour of the border drawn around the map at a step where some UAV received no message (N_t^i empty)."""
+LEGEND_WIDTH = 250
+"""Width (pixels) of the legend panel beside the map; it is at least :data:`LEGEND_MIN_HEIGHT` pixels high (a shorter
+map is padded below in white)."""
+LEGEND_MIN_HEIGHT = 430
+STATUS_HEIGHT = 50
+"""Height (pixels) of the legend panel's status lines (step, coverage, collisions), under its two-line title."""
+_TITLE_HEIGHT = 40
 
 
 def _episode(model, config: SwarmConfig, seed: int, condition: str, deterministic: bool, keep_frame):
     """Play one episode on a one-swarm batch (B = 1) of the core that evaluation and training step; yield
-    ``(t, frame or None, positions (N, 3), dropout, infos, last)`` per step, rendering only the frames
+    ``(t, frame or None, positions (N, 3), dropout, infos, last)`` per step (``infos``: the frame's coverage and
+    collisions so far, as :meth:`~sb3_latentswarm.envs.batched_core.SwarmBatch.step_infos` builds them), rendering only
+    the frames
     ``keep_frame(t)`` asks for (the others are ``None``), so no episode's worth of frames is held."""
     from sb3_latentswarm.envs.batched_core import SwarmBatch
     from sb3_latentswarm.envs.swarm_recon import render_frame
@@ -38,7 +51,8 @@ def _episode(model, config: SwarmConfig, seed: int, condition: str, deterministi
     rng = np.random.default_rng(seed)
     policy = getattr(model, "policy", None)
     switches = policy_switches(policy, condition) if isinstance(policy, LatentSwarmPolicy) else contextlib.nullcontext()
-    infos: dict[str, dict[str, Any]] = {}
+    not_done = np.zeros(1, dtype=bool)
+    infos: dict[str, dict[str, Any]] = dict(zip(agents, core.step_infos(not_done, not_done)[0]))  # after the reset
     state, t, last = None, 0, False
     with switches, th.random.fork_rng():
         th.manual_seed(seed)  # the action noise of deterministic=False
@@ -126,17 +140,119 @@ def _pixels(positions: np.ndarray, config: SwarmConfig, height: int) -> tuple[np
 
 
 def _decorate(frame: np.ndarray, past: np.ndarray, dropout: bool, config: SwarmConfig, border: int = 3) -> np.ndarray:
-    """One frame with the UAV trails so far (``past``: the positions (t, N, 3) before this frame) and, when some UAV
-    received nothing, a red border."""
+    """One frame with the UAV trails so far (``past``: the positions (t, N, 3) before this frame, each a dot of 2 x 2
+    pixels) and, when some UAV received nothing, a red border."""
     frame = frame.copy()
     if len(past):
         rows, cols = _pixels(past, config, frame.shape[0])  # (t, N)
-        colours = _TRAIL_COLOURS[np.arange(past.shape[1]) % len(_TRAIL_COLOURS)]
-        frame[rows, cols] = np.broadcast_to(colours, (*rows.shape, 3))
+        colours = np.broadcast_to(_TRAIL_COLOURS[np.arange(past.shape[1]) % len(_TRAIL_COLOURS)], (*rows.shape, 3))
+        for d_row, d_col in ((0, 0), (0, 1), (1, 0), (1, 1)):
+            frame[np.minimum(rows + d_row, frame.shape[0] - 1), np.minimum(cols + d_col, frame.shape[1] - 1)] = colours
     if dropout:
         for edge in (np.s_[:border], np.s_[-border:], np.s_[:, :border], np.s_[:, -border:]):
-            frame[edge] = (220, 30, 30)
+            frame[edge] = DROPOUT_BORDER
     return frame
+
+
+def _rgb(colour) -> tuple[float, float, float]:
+    """An RGB colour of 0-255 values as matplotlib's 0-1 triple."""
+    red, green, blue = (float(c) / 255.0 for c in colour)
+    return red, green, blue
+
+
+def legend_figure(n_agents: int, title: str = "", height: int = LEGEND_MIN_HEIGHT, width: int = LEGEND_WIDTH):
+    """The legend panel of a rendered episode as a matplotlib ``Figure`` of ``width`` x ``height`` pixels (dpi 100).
+
+    It names what :func:`~sb3_latentswarm.envs.swarm_recon.render_frame` and this module draw: the coverage bar, the
+    map estimate's cells (not yet seen, free, obstacle) and the obstacles no UAV has seen yet, each UAV's colour (its
+    square, trail and sensor footprint), the links (both ways, one way) and the red dropout border. ``title`` (say:
+    the condition and the episode seed) stands above it, and :data:`STATUS_HEIGHT` pixels under the title are left
+    blank for the status lines :func:`render_episode` writes per frame (step, coverage, collisions).
+
+    :param n_agents: N, the number of UAVs (>= 1); colours repeat every 7 UAVs, as in the frames
+    :param title: at most two short lines
+    :param height: pixels (>= 100)
+    :param width: pixels (>= 100)
+    :raise ValueError: for ``n_agents`` < 1 or a size under 100 pixels
+    """
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    if n_agents < 1:
+        raise ValueError(f"n_agents must be >= 1, got {n_agents}")
+    if height < 100 or width < 100:
+        raise ValueError(f"height and width must be >= 100 pixels, got {height} x {width}")
+    fig = Figure(figsize=(width / 100, height / 100), dpi=100, facecolor="white")
+    fig.text(0.05, 1 - 8 / height, title, va="top", ha="left", fontsize=8.5, weight="bold")
+    colours = {name: _rgb(colour) for name, colour in RENDER_COLOURS.items()}
+    free = np.array(RENDER_COLOURS["free"], dtype=float)
+
+    def cell(name: str, label: str) -> Patch:
+        return Patch(facecolor=colours[name], edgecolor="0.55", linewidth=0.6, label=label)
+
+    uavs = [
+        Line2D([], [], color=_rgb(AGENT_COLOURS[i]), marker="s", markersize=7, linestyle=":", linewidth=1.5,
+               label=", ".join(f"uav_{j}" for j in range(i, n_agents, len(AGENT_COLOURS))) + ": square, trail")
+        for i in range(min(n_agents, len(AGENT_COLOURS)))
+    ]
+    tint = (1 - FOOTPRINT_TINT) * free + FOOTPRINT_TINT * AGENT_COLOURS[0]
+    handles = [
+        Patch(facecolor=colours["coverage"], edgecolor=colours["bar"], linewidth=2,
+              label="coverage bar (top):\nshare of cells seen"),
+        cell("unseen", "cell not yet seen"),
+        cell("free", "seen, free"),
+        cell("obstacle", "seen, obstacle"),
+        cell("obstacle_unseen", "obstacle not yet seen\n(ground truth)"),
+        *uavs,
+        Patch(facecolor=_rgb(tint), edgecolor="0.55", linewidth=0.6, label="tinted cells: a UAV's\nsensor footprint now"),
+        Line2D([], [], color=colours["link_both_ways"], linewidth=2.5, label="link, both ways"),
+        Line2D([], [], color=colours["link_one_way"], linewidth=2.5, label="link, one way"),
+        Patch(facecolor="white", edgecolor=_rgb(DROPOUT_BORDER), linewidth=2.5,
+              label="red border: a UAV got no\nmessage this step (dropout)"),
+    ]
+    top = _TITLE_HEIGHT + STATUS_HEIGHT
+    fig.legend(handles=handles, loc="upper left", bbox_to_anchor=(0.0, 1 - top / height), frameon=False, fontsize=8,
+               handlelength=1.8, labelspacing=0.55, borderaxespad=0.3)
+    return fig
+
+
+def _rasterise(fig) -> np.ndarray:
+    """A matplotlib figure as an (H, W, 3) uint8 array."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[..., :3].copy()
+
+
+class _LegendPanel:
+    """The legend panel as an RGB array: the legend rasterised once, the status lines redrawn per frame in their own
+    small figure (a full redraw of the legend would cost more than the episode's step)."""
+
+    def __init__(self, n_agents: int, title: str, height: int) -> None:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+
+        self.legend = _rasterise(legend_figure(n_agents, title, height=height))
+        status_figure = Figure(figsize=(LEGEND_WIDTH / 100, STATUS_HEIGHT / 100), dpi=100, facecolor="white")
+        self.status = status_figure.text(0.05, 0.95, "", va="top", ha="left", fontsize=8.5, family="monospace")
+        self.canvas = FigureCanvasAgg(status_figure)
+
+    def image(self, status: str) -> np.ndarray:
+        """(height, LEGEND_WIDTH, 3) uint8: the legend with ``status`` under its title."""
+        self.status.set_text(status)
+        self.canvas.draw()
+        panel = self.legend.copy()
+        panel[_TITLE_HEIGHT : _TITLE_HEIGHT + STATUS_HEIGHT] = np.asarray(self.canvas.buffer_rgba())[..., :3]
+        return panel
+
+
+def _with_legend(frame: np.ndarray, panel: np.ndarray) -> np.ndarray:
+    """``frame`` with ``panel`` on its right; the shorter of the two is padded below in white."""
+    height = max(frame.shape[0], panel.shape[0])
+    pad = [np.full((height - part.shape[0], part.shape[1], 3), 255, np.uint8) for part in (frame, panel)]
+    return np.concatenate([np.concatenate([frame, pad[0]]), np.concatenate([panel, pad[1]])], axis=1)
 
 
 def render_episode(
@@ -148,6 +264,7 @@ def render_episode(
     fps: int = 10,
     max_frames: int = 400,
     deterministic: bool = True,
+    legend: bool = True,
 ) -> Path:
     """Write an animated GIF or MP4 of one episode to ``output`` and a trajectory figure next to it
     (``*_trajectories.png``).
@@ -160,6 +277,8 @@ def render_episode(
     :param fps: frames per second of the animation (> 0)
     :param max_frames: at most this many frames are written (>= 2)
     :param deterministic: act with the policy's mean action (``False``: sample it, reproducibly from ``seed``)
+    :param legend: put the legend panel (:func:`legend_figure`; condition, episode seed, way of acting, step, coverage
+        and collisions so far) on the right of each frame
     :raise ValueError: for a bad argument, or a model trained on another map or sensor range, before any work
     """
     import imageio.v2 as imageio
@@ -172,9 +291,10 @@ def render_episode(
     output.parent.mkdir(parents=True, exist_ok=True)
     gif = output.suffix.lower() == ".gif"
     positions, dropouts, palette_frames = [], [], []
+    panel = None
     writer = None if gif else imageio.get_writer(output, fps=fps, macro_block_size=1)
     try:
-        for _, frame, position, dropout, _, _ in _episode(
+        for t, frame, position, dropout, infos, _ in _episode(
             model, config, seed, condition, deterministic, lambda t: t % stride == 0
         ):
             positions.append(position)
@@ -182,6 +302,16 @@ def render_episode(
             if frame is None:
                 continue
             frame = _decorate(frame, np.asarray(positions[:-1]).reshape(-1, position.shape[0], 3), dropout, config)
+            if legend:
+                if panel is None:
+                    acting = "mean actions" if deterministic else "sampled actions"
+                    actor = "random actions" if model is None else acting
+                    title = f"{condition}, episode seed {seed}\n{actor}"
+                    panel = _LegendPanel(position.shape[0], title, max(frame.shape[0], LEGEND_MIN_HEIGHT))
+                info: dict[str, Any] = next(iter(infos.values()), {})
+                status = (f"step {t:>4} / {config.max_steps}\ncoverage {100 * info.get('coverage', 0.0):5.1f} %\n"
+                          f"collisions {info.get('collisions', 0):>3}")
+                frame = _with_legend(frame, panel.image(status))
             if writer is None:  # a GIF is written at the end: keep each frame as the 1-byte palette image it becomes
                 palette_frames.append(Image.fromarray(frame).convert("P", palette=Image.Palette.ADAPTIVE))
             else:  # H.264 in yuv420p needs even frame sizes: pad one row/column of the border colour where needed

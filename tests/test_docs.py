@@ -14,11 +14,15 @@ def results_page() -> str:
     return conf["_place_results"]((DOCS / "results.md").read_text())
 
 
+def results_folders() -> list[str]:
+    """The results folders on disk, as the docs build finds them: ``NAME`` (current) or ``archive/NAME``."""
+    return runpy.run_path(str(DOCS / "conf.py"))["results_folders"]()
+
+
 def test_results_page_places_every_folder_once_under_a_title_of_its_own():
     source = (DOCS / "results.md").read_text()
-    placed = re.findall(r"^<!-- results-folder: ([\w.-]+) -->$", source, re.MULTILINE)
-    folders = sorted(p.name for p in (DOCS / "results").iterdir() if p.is_dir())
-    assert sorted(placed) == folders
+    placed = re.findall(r"^<!-- results-folder: ([\w./-]+) -->$", source, re.MULTILINE)
+    assert sorted(placed) == results_folders()
     page = results_page()
     titles = re.findall(r"^#{2,3} (.+)$", page, re.MULTILINE)
     assert len(titles) == len(set(titles)), titles
@@ -35,7 +39,7 @@ def results_index() -> tuple[list[str], dict[str, str]]:
     text = (DOCS / "results" / "README.md").read_text()
     current_part, historical_part = text.split("\n## Current\n")[1].split("\n## Historical")
     historical_part = historical_part.split("\n## ")[0]
-    row = re.compile(r"^\| `([\w.-]+)/` \|(.*)\|$", re.MULTILINE)
+    row = re.compile(r"^\| `((?:archive/)?[\w.-]+)/` \|(.*)\|$", re.MULTILINE)
     current = [name for name, _ in row.findall(current_part)]
     historical = {name: rest.rsplit("|", 1)[-1] for name, rest in row.findall(historical_part)}
     return current, historical
@@ -43,21 +47,29 @@ def results_index() -> tuple[list[str], dict[str, str]]:
 
 def test_results_index_lists_every_folder_once_current_first_and_says_what_supersedes_each_historical_one():
     current, historical = results_index()
-    folders = sorted(p.name for p in (DOCS / "results").iterdir() if p.is_dir())
+    folders = results_folders()
     listed = current + list(historical)
     assert len(listed) == len(set(listed)), "a folder is listed twice"
     assert sorted(listed) == folders, (sorted(set(folders) - set(listed)), sorted(set(listed) - set(folders)))
     text = (DOCS / "results" / "README.md").read_text()
     assert text.index("## Current") < text.index("## Historical")
     for name, superseded_by in historical.items():
-        named = re.findall(r"`([\w.-]+)/`", superseded_by)
+        named = re.findall(r"`((?:archive/)?[\w.-]+)/`", superseded_by)
         assert named and set(named) <= set(folders), (name, superseded_by)
+
+
+def test_historical_folders_without_model_files_sit_in_the_archive_and_current_ones_outside_it():
+    current, historical = results_index()
+    assert not [name for name in current if name.startswith("archive/")]
+    for name in historical:
+        holds_models = any((DOCS / "results" / name).rglob("*.zip"))
+        assert name.startswith("archive/") != holds_models, f"{name}: model files {holds_models}"
 
 
 def test_every_results_plot_has_a_caption():
     page = results_page()
     figures = re.findall(r"```\{figure\} (\S+)\n:alt: \S+\n\n(.+)\n```", page)
-    images = sorted(p for p in (DOCS / "results").glob("*/*") if p.suffix in (".png", ".gif"))
+    images = [p for name in results_folders() for p in (DOCS / "results" / name).glob("*") if p.suffix in (".png", ".gif")]
     assert len(figures) == len(images) > 0
     assert all(caption.strip() for _, caption in figures)
     assert "{image}" not in page
@@ -69,7 +81,7 @@ def test_every_results_plot_has_a_caption():
 def test_results_figures_are_legible_at_page_width():
     from PIL import Image
 
-    for path in sorted((DOCS / "results").glob("*/*.png")):
+    for path in sorted(p for name in results_folders() for p in (DOCS / "results" / name).glob("*.png")):
         width, height = Image.open(path).size
         assert width <= 1600 and width <= 3.5 * height, f"{path.name}: {width} x {height} px"
 

@@ -363,6 +363,21 @@ AGENT_COLOURS = np.array(
     [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189], [140, 86, 75], [227, 119, 194]],
     dtype=np.float64,
 )
+#: The other colours (RGB 0-255) of :func:`render_frame`, named once for the picture and its legend
+#: (``sb3_latentswarm.rendering``): the map estimate's cells, the obstacles no UAV has seen yet (ground truth, shown to
+#: the viewer only), the links drawn between UAVs and the coverage bar above the map.
+RENDER_COLOURS = {
+    "unseen": (128, 128, 128),
+    "free": (245, 245, 245),
+    "obstacle": (20, 20, 20),
+    "obstacle_unseen": (110, 40, 40),
+    "link_both_ways": (0, 200, 0),
+    "link_one_way": (230, 200, 0),
+    "bar": (60, 60, 60),
+    "coverage": (0, 150, 220),
+}
+#: How much of its colour a UAV's sensor footprint mixes into the cells under it: 0.65 cell + 0.35 UAV.
+FOOTPRINT_TINT = 0.35
 
 
 def render_frame(core: SwarmBatch, swarm: int) -> np.ndarray:
@@ -373,10 +388,10 @@ def render_frame(core: SwarmBatch, swarm: int) -> np.ndarray:
     estimate = core.global_map[swarm]
     truth = core.ground_truth[swarm]
     colours = np.empty((height, width, 3))
-    colours[:] = (128, 128, 128)  # unknown
-    colours[estimate == 0] = (245, 245, 245)
-    colours[estimate == 1] = (20, 20, 20)
-    colours[(estimate == -1) & (truth == 1)] = (110, 40, 40)
+    colours[:] = RENDER_COLOURS["unseen"]
+    colours[estimate == 0] = RENDER_COLOURS["free"]
+    colours[estimate == 1] = RENDER_COLOURS["obstacle"]
+    colours[(estimate == -1) & (truth == 1)] = RENDER_COLOURS["obstacle_unseen"]
     agent_colours = AGENT_COLOURS[np.arange(core.n_agents) % len(AGENT_COLOURS)]
     r = config.sensor_range
     rows_padded, cols_padded = np.divmod(core.footprint[swarm], width + 2 * r)  # padded (row, col) per entry
@@ -385,7 +400,7 @@ def render_frame(core: SwarmBatch, swarm: int) -> np.ndarray:
         keep = (iy >= 0) & (iy < height) & (ix >= 0) & (ix < width)
         mask = np.zeros((height, width), dtype=bool)
         mask[iy[keep], ix[keep]] = True
-        colours[mask] = 0.65 * colours[mask] + 0.35 * agent_colours[i]
+        colours[mask] = (1 - FOOTPRINT_TINT) * colours[mask] + FOOTPRINT_TINT * agent_colours[i]
     image = np.repeat(np.repeat(colours[::-1], px, axis=0), px, axis=1)  # y axis up
     img_h, img_w = image.shape[:2]
     x_max, y_max = config.arena_size
@@ -398,10 +413,11 @@ def render_frame(core: SwarmBatch, swarm: int) -> np.ndarray:
             steps = max(abs(cols[a] - cols[b]), abs(rows[a] - rows[b])) + 1
             line_r = np.linspace(rows[a], rows[b], steps).round().astype(int)
             line_c = np.linspace(cols[a], cols[b], steps).round().astype(int)
-            image[line_r, line_c] = (0, 200, 0) if links[a, b] and links[b, a] else (230, 200, 0)
+            both_ways = links[a, b] and links[b, a]
+            image[line_r, line_c] = RENDER_COLOURS["link_both_ways"] if both_ways else RENDER_COLOURS["link_one_way"]
     half = max(1, px // 2 + 1)
     for i in range(core.n_agents):
         image[max(rows[i] - half, 0) : rows[i] + half + 1, max(cols[i] - half, 0) : cols[i] + half + 1] = agent_colours[i]
-    bar = np.full((max(4, px), img_w, 3), 60.0)
-    bar[:, : int(round(core.n_covered[swarm] / config.n_cells * img_w))] = (0, 150, 220)
+    bar = np.full((max(4, px), img_w, 3), RENDER_COLOURS["bar"], dtype=np.float64)
+    bar[:, : int(round(core.n_covered[swarm] / config.n_cells * img_w))] = RENDER_COLOURS["coverage"]
     return np.concatenate([bar, image]).astype(np.uint8)

@@ -130,8 +130,6 @@ def test_bad_input_is_refused_before_any_training():
         make_adapted_vec_env(Rendezvous, 1, link_model=LINK_SPECS["distance"])
     with pytest.raises(ValueError, match="built for 2 swarms of 3 agents"):
         make_adapted_vec_env(Rendezvous, 1, link_model=LINK_SPECS["bernoulli"](2, 3))
-    with pytest.raises(ValueError, match="delay"):
-        make_adapted_vec_env(Rendezvous, 1, link_model=LinkSpec(link_model="outage", message_delay=2))
     env = make_adapted_vec_env(EarlyExit, 1)
     env.reset()
     with pytest.raises(ValueError, match=r"\['agent_0'\] ended before the others"):

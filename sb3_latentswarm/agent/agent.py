@@ -96,7 +96,7 @@ class LatentSwarmAgent:
         return outgoing_message(self._current_state()).squeeze(0).cpu().numpy()
 
     def step(self, observation: Any, received_messages: Any, deterministic: bool = False, noise: Any = None,
-             rng: np.random.Generator | None = None, return_info: bool = False) -> Any:
+             rng: np.random.Generator | None = None, return_info: bool = False, message_ages: Any = None) -> Any:
         """One step of this UAV: pool what arrived, update the latent state, act.
 
         :param observation: this UAV's observation: a mapping with ``local_obs`` (the env's per-agent shape) and
@@ -108,17 +108,22 @@ class LatentSwarmAgent:
             Gaussian), as the evaluation runner draws it
         :param rng: draw eps from this generator instead (else from the generator seeded by :meth:`reset`)
         :param return_info: also return an :class:`AgentStepInfo`
+        :param message_ages: delay-aware policies only (``delay_aware=True``, an extension): how many steps late each
+            received message is, (k,) in [0, E], in the order of ``received_messages`` (each message as its peer sent
+            it, z_{t-1-a}); ``None``: all on time. The step reads their mean divided by E (``docs/concepts.md``,
+            "Delayed messages")
         :return: the action, float32, (action_dim,), clipped to the action space (normalized commands in [-1, 1]);
             with ``return_info``: ``(action, info)``
         :raise RuntimeError: before the first :meth:`reset`
         :raise TypeError: for an observation that is not a mapping or arrays that do not hold numbers
         :raise ValueError: for a missing observation key, a wrong shape (observation, a message not of d floats,
             noise), a non-finite message, noise given with ``deterministic=True``; the state is unchanged when an error
-            is raised
+            is raised; message ages given to a policy that does not read them, or of the wrong shape or range
         """
         state = self._current_state()
         arrays = check_step(self.spec, observation, received_messages, deterministic, noise, rng, self._rng)
         policy = self.policy
+        message_age = self._message_age(message_ages, arrays.message_count)
         device = policy.device
         with th.no_grad():
             proprio = th.as_tensor(arrays.proprio, device=device).unsqueeze(0)
@@ -129,6 +134,7 @@ class LatentSwarmAgent:
                 position=proprio[:, PROPRIO_POSITION],
                 received_message=th.as_tensor(arrays.message_mean, device=device).unsqueeze(0),
                 has_message=th.tensor([arrays.message_count > 0], device=device),
+                message_age=None if message_age is None else th.tensor([[message_age]], device=device),
             )
             out = policy.agent_step(inputs, state)
             noise_tensor = None if arrays.noise is None else th.as_tensor(arrays.noise, device=device).unsqueeze(0)
@@ -145,6 +151,21 @@ class LatentSwarmAgent:
             best_message=out.state.prev_message.squeeze(0).cpu().numpy(),
         )
         return action, info
+
+    def _message_age(self, message_ages: Any, count: int) -> float | None:
+        """alpha_t = mean age / E of the received messages for a delay-aware policy (0 when none arrived), else None."""
+        if not self.policy.delay_aware:
+            if message_ages is not None:
+                raise ValueError("message_ages given, but this policy does not read message ages (delay_aware=False)")
+            return None
+        if message_ages is None:
+            return 0.0
+        ages = np.asarray(message_ages, dtype=np.float64).reshape(-1) if np.ndim(message_ages) else np.array([np.nan])
+        expiry = self.policy.message_expiry
+        if ages.shape != (count,) or not (np.isfinite(ages).all() and (ages >= 0).all() and (ages <= expiry).all()):
+            raise ValueError(f"message_ages must hold one age in [0, {expiry}] (steps) per received message ({count}), "
+                             f"got {message_ages!r}")
+        return float(ages.mean() / max(expiry, 1)) if count else 0.0
 
     def _current_state(self) -> LatentState:
         if self._state is None:

@@ -29,6 +29,7 @@ import json
 import math
 import os
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, cast
 
@@ -46,7 +47,7 @@ from sb3_latentswarm.utils.atomic import write_bytes
 
 __all__ = ["EXPORT_TOLERANCE", "INPUT_NAMES", "METADATA_KEY", "OUTPUT_NAMES", "OPSET", "ExportCheck", "export_onnx"]
 
-STATE_NAMES = tuple(LatentState._fields)
+STATE_NAMES = tuple(LatentState._fields[:6])  # (the delay-aware fields are not exported: see export_onnx)
 INPUT_NAMES = (*STATE_NAMES, "local_obs", "proprio", "message_mean", "message_count", "noise")
 OUTPUT_NAMES = ("action", *(f"next_{name}" for name in STATE_NAMES), "message", "predicted_message")
 OPSET = 17
@@ -82,7 +83,7 @@ class AgentStep(nn.Module):
         self.action_high = th.tensor(spec.action_high, dtype=th.float32)
 
     def forward(self, *tensors: th.Tensor) -> tuple[th.Tensor, ...]:
-        state = LatentState(*tensors[: len(STATE_NAMES)])
+        state = _latent_state(tensors[: len(STATE_NAMES)])
         local_obs, proprio, message_mean, message_count, noise = tensors[len(STATE_NAMES):]
         has_message = message_count > 0
         inputs = AgentInputs(
@@ -96,7 +97,13 @@ class AgentStep(nn.Module):
         out = agent_update(self.policy, inputs, state, _GraphLinears(self.policy))
         action = self.policy.actions_from_noise(out.state.task_state, noise)
         action = th.minimum(th.maximum(action, self.action_low), self.action_high)
-        return (action, *out.state, outgoing_message(out.state), out.predicted_message)
+        return (action, *out.state[: len(STATE_NAMES)], outgoing_message(out.state), out.predicted_message)
+
+
+def _latent_state(tensors: Sequence[th.Tensor]) -> LatentState:
+    """The exported state fields, completed with the zero-column fields of a policy without ``delay_aware``."""
+    empty = tensors[0][:, :0]
+    return LatentState._make((*tensors, empty, empty))
 
 
 @dataclass(frozen=True)
@@ -131,11 +138,16 @@ def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 1
     :return: the :class:`ExportCheck`
     :raise ImportError: without ``onnx`` and ``onnxruntime`` (``pip install "sb3-latentswarm[deploy]"``)
     :raise RuntimeError: when onnxruntime and torch disagree beyond the tolerance (nothing is written)
+    :raise ValueError: for a delay-aware policy (``delay_aware=True``): the message ages are not an input of the
+        exported step; step it with :class:`~sb3_latentswarm.agent.LatentSwarmAgent` (``message_ages=``)
     """
     import onnx
     import onnxruntime as ort
 
     policy = policy_of(model)
+    if policy.delay_aware:
+        raise ValueError("export_onnx does not export a delay-aware policy (delay_aware=True): the message ages are not "
+                         "an input of the exported step; step it with LatentSwarmAgent(model).step(..., message_ages=...)")
     if int(n_check_steps) < 1:
         raise ValueError(f"n_check_steps must be >= 1, got {n_check_steps}")
     module = AgentStep(policy).to("cpu").eval()
@@ -154,7 +166,8 @@ def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 1
         graph = onnx.load_from_string(buffer.getvalue())
         spec = agent_spec(policy)
         metadata = {
-            "format": 1, "state_dims": list(policy.latent_dims), "local_obs_shape": list(spec.local_obs_shape),
+            "format": 1, "state_dims": list(policy.latent_dims[: len(STATE_NAMES)]),
+            "local_obs_shape": list(spec.local_obs_shape),
             "proprio_dim": spec.proprio_dim, "message_dim": spec.message_dim, "action_dim": spec.action_dim,
             "action_low": list(spec.action_low), "action_high": list(spec.action_high),
             "message_substitute": policy.message_substitute, "no_memory": policy.no_memory,
@@ -187,7 +200,7 @@ def _check_episode(policy: LatentSwarmPolicy, n_steps: int, seed: int) -> list[t
     n = 3
     local_shape = local_space.shape
     module = AgentStep(policy).eval()
-    state = [np.zeros((n, dim), dtype=np.float32) for dim in policy.latent_dims]
+    state = [np.zeros((n, dim), dtype=np.float32) for dim in policy.latent_dims[: len(STATE_NAMES)]]
     message = np.zeros((n, policy.message_dim), dtype=np.float32)
     steps = []
     for t in range(n_steps):
@@ -220,7 +233,7 @@ def _finite(bound: np.ndarray) -> np.ndarray:
 
 def _own_step_action(policy: LatentSwarmPolicy, inputs: tuple[np.ndarray, ...]) -> np.ndarray:
     """The action of the policy's own step (under its autocast) for one step's export inputs."""
-    state = LatentState(*(th.as_tensor(x) for x in inputs[: len(STATE_NAMES)]))
+    state = _latent_state([th.as_tensor(x) for x in inputs[: len(STATE_NAMES)]])
     local_obs, proprio, mean, count, noise = (th.as_tensor(x) for x in inputs[len(STATE_NAMES):])
     has_message = count > 0
     agent_inputs = AgentInputs(th.ones(len(count), 1), local_obs, proprio, proprio[:, PROPRIO_POSITION],

@@ -50,9 +50,13 @@ class UavNode:
     ``(N, action_dim)`` draw per step, row ``index``), so a sampled episode is the one ``evaluate`` flies.
 
     :param agent: a :class:`~sb3_latentswarm.agent.LatentSwarmAgent` or :class:`~sb3_latentswarm.agent.OnnxSwarmAgent`
+    :raise ValueError: for a delay-aware policy (``delay_aware=True``): the wire protocol carries no message ages
     """
 
     def __init__(self, agent: Any, index: int) -> None:
+        if getattr(getattr(agent, "policy", None), "delay_aware", False):
+            raise ValueError("the UAV processes do not carry message ages (the wire protocol has none): a delay-aware "
+                             "policy (delay_aware=True) runs as LatentSwarmAgent.step(..., message_ages=...)")
         self.agent = agent
         self.index = int(index)
         spec = agent.spec

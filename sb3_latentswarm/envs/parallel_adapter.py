@@ -11,6 +11,8 @@ key                 shape per slot               from
 ``proprio``         (e,), e may be 0              ``own_state_fn(env)`` (N, e); default none, e = 0
 ``link_row``        (N,)                          the link model: ``[j] = 1`` iff the message of ``j`` reached
                                                   this agent at this step
+``link_age``        (N,), only with delay         the link model: how many steps late that message is (0 where
+                                                  nothing arrived), in [0, E] (``docs/concepts.md``, "Delayed messages")
 ``position``        (3,), only with positions     ``position_fn(env)`` (N, 2) or (N, 3), 2D padded with z = 0
 ``global_state``    (S,)                          ``state_fn(env)``; default ``env.state()``
 ``referent``        (R,), only when given         ``referent_fn(env)``; default: D_eta reconstructs the global state
@@ -29,8 +31,8 @@ final state gives V(s_T) for the truncation bootstrap): read the env's world, no
 What it refuses, before any training (:func:`check_parallel_env` and a probe episode step on a separate copy):
 agents with different spaces, a non-``Box`` observation or action space (a ``Discrete`` action space names the
 continuous alternative), a position function of the wrong shape, a global state or referent that changes shape, a
-link model that needs positions without ``position_fn``, a link model with delay (the policy does not read message
-ages yet), and agents that leave the env before the others.
+link model that needs positions without ``position_fn``, a delayed link model without an ``expiry`` (the bound of
+``link_age``), and agents that leave the env before the others.
 """
 
 from __future__ import annotations
@@ -45,8 +47,8 @@ from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
 from sb3_latentswarm.config import SwarmConfig
-from sb3_latentswarm.envs.observations import GLOBAL_STATE_KEY, POSITION_DIMS, POSITION_KEY, REFERENT_KEY
-from sb3_latentswarm.links import ALL, FixedLinks, LinkModel, make_link_model
+from sb3_latentswarm.envs.observations import GLOBAL_STATE_KEY, LINK_AGE_KEY, POSITION_DIMS, POSITION_KEY, REFERENT_KEY
+from sb3_latentswarm.links import ALL, FixedLinks, LinkModel, LinkStep, make_link_model
 from sb3_latentswarm.utils.checks import check_int
 
 __all__ = ["AdaptedVecEnv", "LinkSpec", "check_parallel_env", "make_adapted_vec_env"]
@@ -61,7 +63,8 @@ class LinkSpec:
     agents: ``LinkSpec(link_model="outage", p_fail=0.3)`` (Bernoulli), ``LinkSpec(link_model="outage",
     outage_model="gilbert_elliott", p_fail=0.6, mean_outage_steps=40)``, ``LinkSpec(link_model="distance",
     link_range=0.5, p_fail=0.0)`` (``link_range`` in the units of ``position_fn``), ``LinkSpec(link_mode="none")`` (no
-    messages) or ``LinkSpec(link_mode="full")``.
+    messages) or ``LinkSpec(link_mode="full")``; any of them with delay: ``LinkSpec(link_model="outage", p_fail=0.3,
+    message_delay=2, message_delay_model="geometric", message_expiry=6)`` (the observation then has ``link_age``).
 
     :param fields: ``SwarmConfig`` fields (``link_model``, ``link_mode``, ``p_fail``, ``outage_model``,
         ``mean_outage_steps``, ``link_range``, the channel parameters of Eq. (1) for ``"a2a"``)
@@ -160,6 +163,8 @@ class AdaptedVecEnv(VecEnv):
         box: dict[str, spaces.Space] = {"local_obs": spaces.Box(low, high, dtype=np.float32),
                                         "proprio": _real_box(self._shapes["proprio"]),
                                         "link_row": spaces.Box(0.0, 1.0, (self.n_agents,), dtype=np.float32)}
+        if self.link_model.has_delay:  # steps late, as the swarm env's (opt-in: only with a delayed link model)
+            box[LINK_AGE_KEY] = spaces.Box(0.0, float(self.link_model.expiry), (self.n_agents,), dtype=np.float32)  # type: ignore[attr-defined]
         if position_fn is not None:
             box[POSITION_KEY] = _real_box((POSITION_DIMS,))
         box[GLOBAL_STATE_KEY] = _real_box(self._shapes[GLOBAL_STATE_KEY])
@@ -199,9 +204,10 @@ class AdaptedVecEnv(VecEnv):
                 f"{type(model).__name__} needs the agents' positions: pass position_fn(env) -> (N, 2 or 3) array, or "
                 "choose a link model without geometry (LinkSpec(link_model='outage', ...))"
             )
-        if model.has_delay:
-            raise ValueError("Link models with delay are not supported by the adapter yet (the policy does not read "
-                             "message ages); use message_delay=0")
+        expiry = getattr(model, "expiry", None)
+        if model.has_delay and (isinstance(expiry, bool) or not isinstance(expiry, (int, np.integer)) or expiry < 0):
+            raise ValueError(f"{type(model).__name__} has delay but no int expiry >= 0 (the largest delay, the bound of "
+                             f"the link_age observation), got expiry={expiry!r}")
         return model
 
     def _probe(self, env: Any, action_space: spaces.Box) -> None:
@@ -332,6 +338,7 @@ class AdaptedVecEnv(VecEnv):
         observation = self._observations(self._draw_links())
         for c, terminal, truncated, summary in finished:
             terminal["link_row"] = np.zeros((n, n), dtype=np.float32)  # no draw: the link streams stay the same
+            terminal[LINK_AGE_KEY] = np.zeros((n, n), dtype=np.float32)
             for i in range(n):
                 slot = c * n + i
                 dones[slot] = True
@@ -354,12 +361,13 @@ class AdaptedVecEnv(VecEnv):
         summary.update({f"sum_{name}": value for name, value in self._metric_sums[c].items()})
         return summary
 
-    def _draw_links(self) -> np.ndarray:
-        """This step's link mask (n_swarms, N, N) bool: ``[c, i, j]`` = the message of j reaches i."""
+    def _draw_links(self) -> LinkStep:
+        """This step's links: ``mask`` (n_swarms, N, N) bool, ``[c, i, j]`` = the message of j reaches i, and, with
+        delay, ``age`` (n_swarms, N, N), how many steps late it is."""
         positions = None
         if self.link_model.needs_positions:
             positions = np.stack([obs[POSITION_KEY] for obs in self._last_obs])  # (n_swarms, N, 3)
-        return self.link_model.step(ALL, self._rngs, positions).mask
+        return self.link_model.step(ALL, self._rngs, positions)
 
     def _slot_arrays(self, copy_obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """One copy's arrays per agent, (N, ...) each, in the observation space's key order."""
@@ -370,8 +378,10 @@ class AdaptedVecEnv(VecEnv):
             out[key] = np.broadcast_to(value, (n, *value.shape)) if key in (GLOBAL_STATE_KEY, REFERENT_KEY) else value
         return out
 
-    def _observations(self, link_mask: np.ndarray) -> dict[str, np.ndarray]:
-        per_copy = [self._slot_arrays({**obs, "link_row": link_mask[c]}) for c, obs in enumerate(self._last_obs)]
+    def _observations(self, links: LinkStep) -> dict[str, np.ndarray]:
+        ages = np.zeros(links.mask.shape) if links.age is None else links.age
+        per_copy = [self._slot_arrays({**obs, "link_row": links.mask[c], LINK_AGE_KEY: ages[c]})
+                    for c, obs in enumerate(self._last_obs)]
         return {key: np.concatenate([obs[key] for obs in per_copy]).astype(np.float32, copy=False)
                 for key in self.observation_space.spaces}  # type: ignore[attr-defined]
 

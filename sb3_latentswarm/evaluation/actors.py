@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from sb3_latentswarm.envs.batched_core import ACTOR_OBS_KEYS
+from sb3_latentswarm.envs.batched_core import ACTOR_OBS_KEYS, LINK_AGE_KEY
 from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
 
 __all__ = ["LatentActor", "PredictActor"]
@@ -45,7 +45,7 @@ class LatentActor:
         policy, n = self.policy, self.n_agents
         device = policy.device
         with th.no_grad():
-            tensors = {key: th.as_tensor(obs[key], device=device) for key in ACTOR_OBS_KEYS}
+            tensors = {key: th.as_tensor(obs[key], device=device) for key in policy.layout.actor_keys}
             starts = th.as_tensor(episode_starts, dtype=th.float32, device=device)
             step = policy.latent_step(tensors, self.state, starts)
             self.state = step.state
@@ -88,7 +88,7 @@ class PredictActor:
         self, obs: dict[str, np.ndarray], episode_starts: np.ndarray, noise: np.ndarray | None
     ) -> tuple[np.ndarray, None, None]:
         """Actions of every slot (clipped to [-1, 1], float64) and no diagnostics."""
-        actor_obs = {key: obs[key] for key in ACTOR_OBS_KEYS}
+        actor_obs = {key: obs[key] for key in (*ACTOR_OBS_KEYS, LINK_AGE_KEY) if key in obs}
         actions, self.state = self.model.predict(
             actor_obs, state=self.state, episode_start=episode_starts, deterministic=self.deterministic
         )

@@ -27,7 +27,7 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from sb3_latentswarm.config import SwarmConfig
-from sb3_latentswarm.envs.batched_core import SwarmBatch
+from sb3_latentswarm.envs.batched_core import LINK_AGE_KEY, SwarmBatch
 from sb3_latentswarm.evaluation.actors import LatentActor, PredictActor
 from sb3_latentswarm.evaluation.conditions import (
     CONDITIONS,
@@ -193,6 +193,8 @@ def _run_episodes(
             "link_row": link_rows.copy(),
             "global_map": core.global_map.copy(),  # (n_envs, H, W): read by the map_error diagnostic only
         }
+        if core.link_ages is not None:  # delayed links: what a delay-aware policy reads beside link_row
+            obs[LINK_AGE_KEY] = core.link_ages.reshape(n_slots, n).copy()
         actions, map_error, pred_error = actor.act(obs, episode_starts, noise)
         diagnostics.record(np.repeat(episode_of, n), episode_starts > 0, link_rows.sum(-1) == 0, map_error, pred_error)
         episode_starts[:] = 0.0

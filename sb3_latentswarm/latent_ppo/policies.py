@@ -26,7 +26,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 
-from sb3_latentswarm.envs.observations import POSITION_DIMS, as_vec_observation
+from sb3_latentswarm.envs.observations import LINK_AGE_KEY, POSITION_DIMS, as_vec_observation
 from sb3_latentswarm.latent_ppo.critic import build_critic, critic_output, mlp
 from sb3_latentswarm.latent_ppo.distributions import (  # noqa: F401  (smooth_log_std & co: also importable from here)
     TanhSquashedGaussianDistribution,
@@ -37,6 +37,7 @@ from sb3_latentswarm.latent_ppo.distributions import (  # noqa: F401  (smooth_lo
 )
 from sb3_latentswarm.latent_ppo.policy_checks import (  # noqa: F401  (REQUIRED_KEYS, check_observation_space: public here)
     REQUIRED_KEYS,
+    check_delay_aware,
     check_log_std_bounds,
     check_observation_space,
     space_shape,
@@ -149,6 +150,7 @@ class LatentSwarmPolicy(BasePolicy):
         callers: reading it says whether the substitute is ``"zero"``, setting it switches between ``"zero"`` and
         ``"predicted"``)
     :param no_memory: ablation: rho is zeroed before every use
+    :param delay_aware: (extension, opt-in) pool delayed messages as sent and read their age (docs/concepts.md, delay)
     """
 
     # narrowed from BasePolicy's Space: __init__ accepts only these
@@ -181,6 +183,7 @@ class LatentSwarmPolicy(BasePolicy):
         no_predictor: bool = False,
         no_memory: bool = False,
         message_substitute: str = "predicted",
+        delay_aware: bool = False,
         **unused_kwargs: Any,
     ):
         if unused_kwargs:
@@ -248,6 +251,7 @@ class LatentSwarmPolicy(BasePolicy):
                 raise ValueError(f"no_predictor=True contradicts message_substitute={message_substitute!r}")
             self.message_substitute = "zero"
         self.no_memory = no_memory
+        self.delay_aware, self.message_expiry, self.layout = check_delay_aware(delay_aware, observation_space, self.layout)
 
         self.local_obs_dim = int(np.prod(space_shape(observation_space["local_obs"])))
         self.proprio_dim = int(space_shape(observation_space["proprio"])[-1])
@@ -256,13 +260,14 @@ class LatentSwarmPolicy(BasePolicy):
         self.position_dims = self.layout.position_dims
         self.swarm_critic = "swarm_proprio" in self.layout.critic_keys
         self.action_dim = int(np.prod(action_space.shape))
-        o_dim, e_dim, d_mu, d_tau, d_rho, d_msg = (
+        o_dim, e_dim, d_mu, d_tau, d_rho, d_msg, age_dim = (
             self.local_obs_dim,
             self.proprio_dim,
             self.map_dim,
             self.task_dim,
             self.memory_dim,
             self.message_dim,
+            int(self.delay_aware),  # the age column of the task, memory and predictor inputs (delay-aware)
         )
 
         # E_phi(mu_{t-1}; o_t, p_t, m^mu_t)
@@ -270,11 +275,11 @@ class LatentSwarmPolicy(BasePolicy):
         # D_eta(mu_t) -> M_hat_t
         self.map_decoder = mlp([d_mu, decoder_hidden, self.n_cells], nn.ReLU)
         # F_theta(tau_{t-1}; o_t, e_t, mu_{t-1}, mbar_t)
-        self.task_encoder = nn.GRUCell(o_dim + e_dim + d_mu + d_msg, d_tau)
+        self.task_encoder = nn.GRUCell(o_dim + e_dim + d_mu + d_msg + age_dim, d_tau)  # (+ alpha_t: delay-aware)
         # G_psi(rho_{t-1}; tau_{t-1}, o_{t-1}, mbar_{t-1})
-        self.memory_encoder = nn.GRUCell(d_tau + o_dim + d_msg, d_rho)
+        self.memory_encoder = nn.GRUCell(d_tau + o_dim + d_msg + age_dim, d_rho)  # (+ alpha_{t-1})
         # P_zeta(rho_t, o_t, e_t) -> mhat_t
-        self.message_predictor = mlp([d_rho + o_dim + e_dim, predictor_hidden, d_msg])
+        self.message_predictor = mlp([d_rho + o_dim + e_dim + age_dim, predictor_hidden, d_msg])  # (+ alpha_t)
         # pi_xi(a | tau_t): mean and diagonal log std (raw outputs, bounded by bound_log_std)
         self.actor_trunk = nn.Sequential(nn.Linear(d_tau, actor_hidden), nn.Tanh())
         self.action_mean = nn.Linear(actor_hidden, self.action_dim)
@@ -337,6 +342,7 @@ class LatentSwarmPolicy(BasePolicy):
             no_memory=self.no_memory,
             message_substitute=self.message_substitute,
         )
+        data.update({"delay_aware": True} if self.delay_aware else {})  # (absent when off: older versions load the file)
         return data
 
     @property
@@ -351,7 +357,8 @@ class LatentSwarmPolicy(BasePolicy):
     @property
     def latent_dims(self) -> tuple[int, ...]:
         """Sizes of the :class:`LatentState` fields, in field order."""
-        return (self.map_dim, self.task_dim, self.memory_dim, self.local_obs_dim, self.message_dim, self.message_dim)
+        delay = (self.message_expiry * self.message_dim, 1) if self.delay_aware else (0, 0)  # (zero columns when off)
+        return (self.map_dim, self.task_dim, self.memory_dim, self.local_obs_dim, self.message_dim, self.message_dim, *delay)
 
     def initial_state(self, n_slots: int) -> LatentState:
         """All-zero latent state for ``n_slots`` agents (the state at an episode start)."""
@@ -392,6 +399,7 @@ class LatentSwarmPolicy(BasePolicy):
             position=self.map_position(obs, proprio),
             link_mask=link_mask,
             has_message=(link_row.sum(-1) > 0),
+            link_age=obs[LINK_AGE_KEY].float().view_as(link_mask) if self.delay_aware else None,
         )
 
     def map_position(self, obs: dict[str, th.Tensor], proprio: th.Tensor) -> th.Tensor:

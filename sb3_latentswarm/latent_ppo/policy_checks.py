@@ -4,14 +4,21 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Callable
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from gymnasium import spaces
 
-from sb3_latentswarm.envs.observations import ACTOR_OBS_KEYS, STATE_OBS_KEYS, ObservationLayout, observation_layout
+from sb3_latentswarm.envs.observations import (
+    ACTOR_OBS_KEYS,
+    LINK_AGE_KEY,
+    STATE_OBS_KEYS,
+    ObservationLayout,
+    observation_layout,
+)
 
-__all__ = ["REQUIRED_KEYS", "check_log_std_bounds", "check_observation_space", "space_shape", "unexpected_kwargs_message"]
+__all__ = ["REQUIRED_KEYS", "check_delay_aware", "check_log_std_bounds", "check_observation_space", "space_shape",
+           "unexpected_kwargs_message"]
 
 REQUIRED_KEYS = ACTOR_OBS_KEYS + STATE_OBS_KEYS
 """The observation keys the policy reads on the swarm env: the actor's and the critic's (adapted envs:
@@ -66,3 +73,23 @@ def check_observation_space(observation_space: spaces.Space) -> ObservationLayou
         if not isinstance(observation_space[key], spaces.Box):
             raise TypeError(f"LatentSwarmPolicy needs Box spaces; observation {key!r} is {observation_space[key]}")
     return layout
+
+
+def check_delay_aware(delay_aware: Any, observation_space: spaces.Dict,
+                      layout: ObservationLayout) -> tuple[bool, int, ObservationLayout]:
+    """``delay_aware`` checked against the observation space: ``(delay_aware, E, layout)`` with E the expiry (the
+    upper bound of ``link_age``; 0 when off) and the layout's actor keys extended by ``link_age`` when on.
+
+    :raise TypeError: ``delay_aware`` is not a bool
+    :raise ValueError: ``delay_aware=True`` without the ``link_age`` key (links without delay)
+    """
+    if not isinstance(delay_aware, (bool, np.bool_)):
+        raise TypeError(f"delay_aware must be a bool, got {delay_aware!r}")
+    if not delay_aware:
+        return False, 0, layout
+    if LINK_AGE_KEY not in observation_space.spaces:
+        raise ValueError(f"delay_aware=True reads the observation key {LINK_AGE_KEY!r} (links with delay: "
+                         f"SwarmConfig.message_delay > 0, or a delayed link model in the adapter); the observation "
+                         f"space has {list(observation_space.spaces)}")
+    expiry = int(np.max(cast(spaces.Box, observation_space[LINK_AGE_KEY]).high))
+    return True, expiry, layout._replace(actor_keys=layout.actor_keys + (LINK_AGE_KEY,))

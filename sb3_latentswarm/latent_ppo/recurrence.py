@@ -17,6 +17,11 @@ Per UAV i at step t, in the paper's order:
 * map (Sec. III-A): mu_t = E_phi(mu_{t-1}, o_t, p_t, m_t^mu) with m_t^mu = 0 when nothing arrived (the asymmetric
   update: the map state never sees a predicted message)
 * task (Sec. III-A): tau_t = F_theta(tau_{t-1}, o_t, e_t, mu_{t-1}, mbar_t)
+
+Under delayed links (an extension, opt-in: ``LatentSwarmPolicy(delay_aware=True)``) a message of j that arrives a_ij
+steps late is pooled as it was sent, z_{t-1-a_ij}^j (:func:`pool_delayed_messages`), and the pooled message's age
+alpha_t = mean_{j in N_t^i} a_ij / E (0 when nothing arrived) is one more input of the task update (beside mbar_t),
+the memory update (alpha_{t-1}, beside mbar_{t-1}) and the predictor (P_zeta(rho_t, o_t, e_t, alpha_t)).
 """
 
 from __future__ import annotations
@@ -45,6 +50,7 @@ __all__ = [
     "gru_cell",
     "gru_update",
     "outgoing_message",
+    "pool_delayed_messages",
     "pool_messages",
     "replay_sequence",
     "swarm_step",
@@ -73,6 +79,9 @@ class AgentInputs(NamedTuple):
     """m_t, the mean of the messages z_{t-1}^j received over live in-links, zero when none arrived, (B, d_mu + d_tau)."""
     has_message: th.Tensor
     """Whether N_t^i is not empty, (B,) bool."""
+    message_age: th.Tensor | None = None
+    """Delay-aware policies only: alpha_t, the mean age of the pooled messages divided by the expiry E, in [0, 1], 0
+    when nothing arrived, (B, 1); ``None``: the policy does not read ages (the paper)."""
 
 
 class StepInputs(NamedTuple):
@@ -92,6 +101,9 @@ class StepInputs(NamedTuple):
     """[..., s, i, j] = 1 iff the link j -> i of swarm s delivered at t, (..., n_swarms, N, N)."""
     has_message: th.Tensor
     """Whether N_t^i is not empty, (..., B) bool."""
+    link_age: th.Tensor | None = None
+    """Delay-aware policies only: [..., s, i, j] = how many steps late the message of j -> i is (0 where nothing
+    arrived), float, (..., n_swarms, N, N); ``None`` otherwise."""
 
 
 class StepOutput(NamedTuple):
@@ -135,6 +147,33 @@ def pool_messages(sent_messages: th.Tensor, link_mask: th.Tensor) -> tuple[th.Te
     return received, (in_degree > 0).view(n_swarms * n_agents)
 
 
+def pool_delayed_messages(sent_messages: th.Tensor, link_mask: th.Tensor, link_age: th.Tensor,
+                          expiry: int) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+    """Sec. III-B under delay (extension): each arrival pooled as it was sent, m_t^i = mean_{j in N_t^i}
+    z_{t-1-a_ij}^j, and its age alpha_t^i = mean_{j in N_t^i} a_ij / E (both zero when nothing arrived); the torch
+    counterpart of :func:`sb3_latentswarm.links.pool_delayed_messages`.
+
+    :param sent_messages: [s, j, a] = z_{t-1-a}^j, the messages every agent sent, freshest first, (n_swarms, N, E + 1, d)
+    :param link_mask: [s, i, j] = 1.0 iff a message of j arrived at i at t, float, (n_swarms, N, N)
+    :param link_age: [s, i, j] = its delay a_ij in steps, in [0, E], float, (n_swarms, N, N)
+    :param expiry: E, the largest delay (ages are divided by max(E, 1))
+    :return: received messages m_t (n_swarms * N, d), whether anything arrived (n_swarms * N,) bool, alpha_t
+        (n_swarms * N, 1)
+    """
+    n_swarms, n_agents, n_ages, dim = sent_messages.shape
+    in_degree = link_mask.sum(-1, keepdim=True)  # |N_t^i|, (n_swarms, N, 1)
+    weights = link_mask / in_degree.clamp(min=1.0)  # (n_swarms, N, N)
+    by_age = F.one_hot(link_age.long(), n_ages).to(weights.dtype) * weights.unsqueeze(-1)  # (n_swarms, N, N, E + 1)
+    received = th.einsum("sija,sjad->sid", by_age, sent_messages).reshape(n_swarms * n_agents, dim)
+    age = (weights * link_age).sum(-1, keepdim=True) / max(expiry, 1)  # (n_swarms, N, 1)
+    return received, (in_degree > 0).view(n_swarms * n_agents), age.view(n_swarms * n_agents, 1)
+
+
+def _with_age(blocks: Blocks, name: str, age: th.Tensor | None) -> Blocks:
+    """``blocks`` with an age column appended (delay-aware policies), unchanged otherwise."""
+    return blocks if age is None else (*blocks, (name, age))
+
+
 def agent_update(policy: LatentSwarmPolicy, inputs: AgentInputs, state: LatentState,
                  linears: Linears | None = None) -> StepOutput:
     """Everything after pooling of Sec. III for a batch of agents: memory, predictor / substitute, the asymmetric map
@@ -146,19 +185,23 @@ def agent_update(policy: LatentSwarmPolicy, inputs: AgentInputs, state: LatentSt
     :param linears: how the layers' GEMMs are computed (default :class:`EagerLinears`: the rollout's computation)
     """
     linears = EagerLinears(policy) if linears is None else linears
-    map_prev, task_prev, memory_prev, local_prev, message_prev, held_prev = (field * inputs.keep for field in state)
+    map_prev, task_prev, memory_prev, local_prev, message_prev, held_prev = (field * inputs.keep for field in state[:6])
+    age = inputs.message_age  # alpha_t (delay-aware policies), else None
+    prev_age = None if age is None else state.prev_message_age * inputs.keep
     local_obs, proprio, received_message = inputs.local_obs, inputs.proprio, inputs.received_message
     sent_message = th.cat([map_prev, task_prev], dim=-1)  # z_{t-1}^i, (B, d_mu + d_tau)
 
     # Sec. III-A: rho_t = G_psi(rho_{t-1}, tau_{t-1}, o_{t-1}, mbar_{t-1})   (no_memory: rho zeroed before use)
     if policy.no_memory:
         memory_prev = th.zeros_like(memory_prev)
-    memory_state = linears.gru(policy.memory_encoder, (("task_prev", task_prev), ("prev_local_obs", local_prev),
-                                                      ("message_prev", message_prev)), memory_prev)
+    memory_state = linears.gru(policy.memory_encoder, _with_age((("task_prev", task_prev), ("prev_local_obs", local_prev),
+                                                                ("message_prev", message_prev)), "prev_age", prev_age),
+                               memory_prev)
     memory_used = th.zeros_like(memory_state) if policy.no_memory else memory_state
 
     # Sec. III-C: mhat_t = P_zeta(rho_t, o_t, e_t);  mbar_t = m_t if N_t^i != {} else mhat_t
-    predicted_message = linears.predictor((("memory", memory_used), ("local_obs", local_obs), ("proprio", proprio)))
+    predicted_message = linears.predictor(_with_age((("memory", memory_used), ("local_obs", local_obs),
+                                                     ("proprio", proprio)), "age", age))
     # (extensions: hold_last / own_message / zero replace mhat_t; see MESSAGE_SUBSTITUTES)
     received_now = inputs.has_message.unsqueeze(-1)
     held_message = th.where(received_now, received_message, held_prev)
@@ -179,10 +222,12 @@ def agent_update(policy: LatentSwarmPolicy, inputs: AgentInputs, state: LatentSt
                                                 ("map_message", map_message)), map_prev)
 
     # Sec. III-A: tau_t = F_theta(tau_{t-1}, o_t, e_t, mu_{t-1}, mbar_t)
-    task_state = linears.gru(policy.task_encoder, (("local_obs", local_obs), ("proprio", proprio), ("map_prev", map_prev),
-                                                  ("best_message", best_message)), task_prev)
+    task_state = linears.gru(policy.task_encoder, _with_age((("local_obs", local_obs), ("proprio", proprio),
+                                                            ("map_prev", map_prev), ("best_message", best_message)),
+                                                           "age", age), task_prev)
 
-    new_state = LatentState(map_state, task_state, memory_state, local_obs, best_message, held_message)
+    new_state = LatentState(map_state, task_state, memory_state, local_obs, best_message, held_message,
+                            state.sent_history, state.prev_message_age if age is None else age)
     return StepOutput(new_state, received_message, predicted_message, inputs.has_message, sent_message)
 
 
@@ -196,10 +241,22 @@ def swarm_step(policy: LatentSwarmPolicy, inputs: StepInputs, state: LatentState
     """
     n_swarms, n_agents = inputs.link_mask.shape[:2]
     sent = outgoing_message(state, inputs.keep).view(n_swarms, n_agents, policy.message_dim)
-    received_message, has_message = pool_messages(sent, inputs.link_mask)
+    if inputs.link_age is None:
+        received_message, has_message = pool_messages(sent, inputs.link_mask)
+        message_age = None
+    else:  # delay-aware: z_{t-1-a} of each arrival from the senders' histories [z_{t-1}; z_{t-2}; ...; z_{t-1-E}]
+        history = th.cat([sent.flatten(0, 1), state.sent_history * inputs.keep], dim=-1)  # (B, (E + 1) d)
+        sent_by_age = history.view(n_swarms, n_agents, -1, policy.message_dim)
+        received_message, has_message, message_age = pool_delayed_messages(
+            sent_by_age, inputs.link_mask, inputs.link_age, policy.message_expiry)
     agent_inputs = AgentInputs(inputs.keep, inputs.local_obs, inputs.proprio, inputs.position, received_message,
-                               has_message)
-    return agent_update(policy, agent_inputs, state, linears)
+                               has_message, message_age)
+    out = agent_update(policy, agent_inputs, state, linears)
+    if inputs.link_age is None:
+        return out
+    # the history carried into t + 1: [z_{t-1}; ...; z_{t-E}] (the oldest message drops out)
+    new_history = history[:, : state.sent_history.shape[-1]]
+    return out._replace(state=out.state._replace(sent_history=new_history))
 
 
 # ---------------------------------------------------------------------------------------------- how GEMMs are computed
@@ -326,7 +383,7 @@ def replay_sequence(policy: LatentSwarmPolicy, inputs: StepInputs, state: Latent
         sequence_linears = SequenceLinears(policy, sequence, dtype)
     outputs: list[list[th.Tensor]] = [[], [], [], [], []]
     for t in range(n_steps):
-        step_inputs = StepInputs._make(field[t] for field in inputs)
+        step_inputs = StepInputs._make(None if field is None else field[t] for field in inputs)
         if linears == "sequence":
             sequence_linears.t = t
             step = swarm_step(policy, step_inputs, state, sequence_linears)

@@ -254,7 +254,9 @@ def restore_run_state(model: Any, checkpoint: str | Path | CheckpointContents) -
         inner._seeded = state["env"]["seeded"]  # type: ignore[union-attr]
         model._last_obs = {name[9:]: value.copy() for name, value in arrays.items() if name.startswith("last_obs.")}
         model._last_episode_starts = arrays["last_episode_starts"].copy()
-        model._last_latent_state = LatentState(*(tensors[f"latent.{name}"].to(model.device) for name in LatentState._fields))
+        initial = model.policy.initial_state(len(model._last_episode_starts))  # (fields an older checkpoint lacks)
+        model._last_latent_state = LatentState(*(tensors.get(f"latent.{name}", getattr(initial, name)).to(model.device)
+                                                 for name in LatentState._fields))
     else:  # new episodes from a seed that depends on where the run stopped
         base = model.seed if model.seed is not None else 0
         model.env.seed(base + int(state["num_timesteps"]))

@@ -14,10 +14,13 @@ import difflib
 import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.latent_ppo.schedules import paper_learning_rate
+
+if TYPE_CHECKING:
+    from sb3_latentswarm.envs.adapted_env import AdaptedEnv
 
 
 @dataclass(frozen=True)
@@ -40,6 +43,33 @@ class Preset:
     baseline_timesteps: int = 0
     """Training budget (agent-steps) of the independent RecurrentPPO baseline; 0 skips it."""
     description: str = ""
+    env: AdaptedEnv | None = None
+    """An adapted env to run on instead of the swarm env (``--env``, :meth:`with_env`): :attr:`config` then gives its
+    link model (``link_model``, ``link_mode``, ``p_fail``, ...) and ``n_agents`` (the env's); ``None``: the swarm env."""
+
+    def with_env(self, env: AdaptedEnv | None, keep_links: bool = False) -> Preset:
+        """This preset's algorithm settings and budget on the adapted env ``env`` (``None``: unchanged).
+
+        The config takes the env's number of agents and, until a ``--set`` changes it, Bernoulli outages
+        (``link_model="outage"``, at the preset's ``p_fail``): the A2A channel of Eq. (1) is in metres, which another
+        env's positions need not be. An env whose actions are not in [-1, 1] (MPE2: [0, 1]) gets the paper's Gaussian
+        actor (``action_distribution="gaussian"``; the CPU presets' squashed Gaussian gives [-1, 1] only). Builds one
+        env copy to read its agents and action space.
+
+        :param keep_links: keep the config's ``link_model`` (a saved run's config) instead of Bernoulli outages
+
+        :raise ValueError: the env cannot be built (see :meth:`AdaptedEnv.n_agents
+            <sb3_latentswarm.envs.adapted_env.AdaptedEnv.n_agents>`)
+        """
+        if env is None:
+            return self
+        n_agents, symmetric_actions = env.probe()
+        config = self.config.replace(n_agents=n_agents, link_model=self.config.link_model if keep_links else "outage")
+        algo_kwargs = self.algo_kwargs
+        if not symmetric_actions and algo_kwargs.get("policy_kwargs", {}).get("action_distribution") == "squashed_gaussian":
+            policy_kwargs = {**algo_kwargs["policy_kwargs"], "action_distribution": "gaussian"}
+            algo_kwargs = {**algo_kwargs, "policy_kwargs": policy_kwargs}
+        return dataclasses.replace(self, env=env, config=config, algo_kwargs=algo_kwargs)
 
     @property
     def updates(self) -> int:
@@ -77,7 +107,8 @@ class Preset:
     def make_env(self, seed: int | None = 0, *, config: SwarmConfig | None = None, backend: str = "batched") -> Any:
         """The preset's training ``VecEnv``: :attr:`n_envs` swarms of :attr:`config` (or ``config``), one slot per agent.
 
-        The one path from a preset to an env (the CLI, the sweep trials, the examples and the benchmarks use it).
+        The one path from a preset to an env (the CLI, the sweep trials, the examples and the benchmarks use it). With
+        :attr:`env`, the adapted VecEnv of that env with ``config``'s link model.
 
         :param seed: base seed: swarm copy ``c`` uses ``seed + c``
         :param config: another env config (e.g. ``link_mode="none"`` for the ``no_comm`` learner); default the preset's
@@ -85,9 +116,14 @@ class Preset:
         :return: an SB3 ``VecMonitor`` with ``num_envs = n_envs * n_agents``
         :raise ValueError: for a bad config, backend or ``n_envs`` (from :func:`~sb3_latentswarm.envs.make_vec_env`)
         """
+        config = self.config if config is None else config
+        if self.env is not None:
+            if backend != "batched":
+                raise ValueError(f"backend {backend!r} steps the swarm env only; an adapted env (--env) has its own VecEnv")
+            return self.env.make_vec_env(self.n_envs, config, seed)
         from sb3_latentswarm.envs import make_vec_env
 
-        return make_vec_env(self.n_envs, config=self.config if config is None else config, seed=seed, backend=backend)
+        return make_vec_env(self.n_envs, config=config, seed=seed, backend=backend)
 
     def make_model(self, env: Any, *, seed: int | None = 0, **kwargs: Any) -> Any:
         """``LatentSwarmPPO("LatentSwarmPolicy", env, seed=seed, **algo_kwargs)`` with :attr:`algo_kwargs` and ``kwargs``.

@@ -13,7 +13,7 @@ import pytest
 from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test
 
 from sb3_latentswarm.config import SwarmConfig
-from sb3_latentswarm.envs import OBS_KEYS, SwarmReconEnv, parallel_env, swarm_recon_v0
+from sb3_latentswarm.envs import ACTOR_OBS_KEYS, OBS_KEYS, SwarmReconEnv, parallel_env, swarm_recon_v0
 
 # 50-step episodes (b_0 / kappa = 5 / 0.1) on a 20 x 20 grid: fast, and long enough to move around.
 SMALL = SwarmConfig(grid_width=20, grid_height=20, num_obstacles=20, initial_energy=5.0, energy_decay=0.1, max_steps=1000)
@@ -31,6 +31,11 @@ EXACT = SwarmConfig(
     dt=1.0,
 )
 Z = 10.0  # altitude used in the scenarios (metres)
+
+
+def swarm_proprio(obs: dict) -> np.ndarray:
+    """{e_t^j} (N, 8) from the agents' own ``proprio``, in agent order."""
+    return np.stack([agent_obs["proprio"] for agent_obs in obs.values()])
 
 
 def zero_actions(env: SwarmReconEnv) -> dict[str, np.ndarray]:
@@ -55,6 +60,14 @@ def footprint_cells(env: SwarmReconEnv, positions: np.ndarray) -> set[tuple[int,
 # ---------------------------------------------------------------------------------------------------- PettingZoo API
 def test_parallel_api_test_small_config():
     parallel_api_test(SwarmReconEnv(SMALL), num_cycles=120)  # two resets, episodes of 50 steps end inside the test
+
+
+def test_parallel_api_test_critic_view_and_delay():
+    parallel_api_test(SwarmReconEnv(SMALL, critic_keys=True), num_cycles=60)
+    delayed = SMALL.replace(message_delay=1, message_delay_model="uniform", message_expiry=2)
+    env = SwarmReconEnv(delayed)
+    assert tuple(env.observation_space("uav_0").spaces) == (*ACTOR_OBS_KEYS, "link_age")  # the age is the agent's own
+    parallel_api_test(env, num_cycles=60)
 
 
 def test_parallel_api_test_paper_config():
@@ -85,7 +98,8 @@ def test_same_seed_same_episode_including_links():
     assert len(first) == len(second) == 51
     for a, b in zip(first[1:], second[1:]):
         for agent in a[0]:
-            for key in OBS_KEYS:
+            assert tuple(a[0][agent]) == ACTOR_OBS_KEYS
+            for key in ACTOR_OBS_KEYS:
                 np.testing.assert_array_equal(a[0][agent][key], b[0][agent][key])
         assert a[1:] == b[1:]
     links_first = np.array([step[0]["uav_0"]["link_row"] for step in first[1:]])
@@ -122,16 +136,14 @@ def test_observation_keys_dtypes_shapes():
     env = SwarmReconEnv(SMALL, n_agents=4)
     obs, infos = env.reset(seed=0)
     fw = 2 * SMALL.sensor_range + 1
-    expected = {
+    expected = {  # what the agent may see when it acts (PettingZoo's convention): no global key
         "local_obs": ((fw * fw,), np.int8),
         "proprio": ((8,), np.float32),
         "link_row": ((4,), np.float32),
-        "swarm_proprio": ((4, 8), np.float32),
-        "global_map": ((20, 20), np.int8),
     }
     for agent in env.possible_agents:
         space = env.observation_space(agent)
-        assert tuple(space.spaces) == OBS_KEYS
+        assert tuple(space.spaces) == ACTOR_OBS_KEYS
         assert set(obs[agent]) == set(expected)
         for key, (shape, dtype) in expected.items():
             assert space[key].shape == shape and space[key].dtype == dtype, key
@@ -146,6 +158,28 @@ def test_observation_keys_dtypes_shapes():
     assert env.state().dtype == np.float32
 
 
+def test_the_global_state_comes_from_state_and_critic_keys_add_it_to_the_observation():
+    env, critic_view = SwarmReconEnv(SMALL, n_agents=4), SwarmReconEnv(SMALL, n_agents=4, critic_keys=True)
+    obs, _ = env.reset(seed=2)
+    full, _ = critic_view.reset(seed=2)
+    for _ in range(3):
+        state = env.state()
+        np.testing.assert_array_equal(state, critic_view.state())
+        np.testing.assert_array_equal(state[: 4 * 8].reshape(4, 8), swarm_proprio(obs))
+        np.testing.assert_array_equal(state[4 * 8 :].reshape(20, 20), env.global_map)
+        for agent in env.possible_agents:
+            assert tuple(critic_view.observation_space(agent).spaces) == OBS_KEYS
+            assert critic_view.observation_space(agent).contains(full[agent])
+            for key in ACTOR_OBS_KEYS:
+                np.testing.assert_array_equal(obs[agent][key], full[agent][key])
+            np.testing.assert_array_equal(full[agent]["swarm_proprio"], swarm_proprio(obs))
+            np.testing.assert_array_equal(full[agent]["global_map"], env.global_map)
+        actions = {a: np.full(4, 0.3, dtype=np.float32) for a in env.agents}
+        obs, full = env.step(actions)[0], critic_view.step(actions)[0]
+    with pytest.raises(TypeError, match="critic_keys"):
+        SwarmReconEnv(SMALL, critic_keys=1)
+
+
 def test_proprio_matches_state():
     cfg = SMALL.replace(action_frame="world")
     env = SwarmReconEnv(cfg)
@@ -158,8 +192,7 @@ def test_proprio_matches_state():
         np.testing.assert_allclose(e[:3], [pos[i, 0] / x_max, pos[i, 1] / y_max, (pos[i, 2] - 5.0) / 15.0], rtol=1e-6)
         assert -1.0 <= e[6] < 1.0
         assert e[7] == pytest.approx((5.0 - 0.1) / 5.0)
-        np.testing.assert_array_equal(obs[agent]["swarm_proprio"][i], e)
-        np.testing.assert_array_equal(obs[agent]["global_map"], env.global_map)
+        np.testing.assert_array_equal(env.state()[i * 8 : (i + 1) * 8], e)
     # Noise-free velocity is the command: vx/v_max = 0.5, vz/vz_max = 1.
     exact = SwarmReconEnv(EXACT)
     exact.reset(seed=0, options={"positions": [[5.5, 5.5, Z], [9.5, 9.5, Z]]})
@@ -168,7 +201,7 @@ def test_proprio_matches_state():
 
 
 def test_observations_are_read_only_and_not_mutated_later():
-    env = SwarmReconEnv(SMALL)
+    env = SwarmReconEnv(SMALL, critic_keys=True)
     obs, _ = env.reset(seed=1)
     snapshot = {key: obs["uav_0"][key].copy() for key in OBS_KEYS}
     for key in OBS_KEYS:
@@ -187,7 +220,7 @@ def test_pickled_copy_keeps_its_state_consistent():
         obs = copy.step({a: np.array([1.0, 0.0, 0.0, 0.0], dtype=np.float32) for a in copy.agents})[0]
         np.testing.assert_allclose(copy.positions[:, 0], [6.5, 10.5])
         assert obs["uav_0"]["proprio"][0] == pytest.approx(6.5 / 12.0)
-        np.testing.assert_array_equal(copy.global_map, obs["uav_0"]["global_map"])
+        np.testing.assert_array_equal(copy.global_map.ravel(), copy.state()[2 * 8 :])
         assert (copy.global_map >= 0).sum() == 18 + 3 + 3  # the copy's M_hat view follows its own map
     np.testing.assert_allclose(env.positions[:, 0], [5.5, 9.5])  # the original did not move
 
@@ -199,7 +232,7 @@ def test_reset_state_follows_the_paper():
     pos = env.positions
     assert np.all((pos[:, :2] >= 0.0) & (pos[:, :2] <= 20.0))
     np.testing.assert_array_equal(pos[:, 2], SMALL.initial_altitude)
-    e = obs["uav_0"]["swarm_proprio"]
+    e = swarm_proprio(obs)
     np.testing.assert_array_equal(e[:, 3:6], 0.0)  # zero velocity
     assert np.all((e[:, 6] >= -1.0) & (e[:, 6] < 1.0)) and np.unique(e[:, 6]).size == 6  # random headings
     np.testing.assert_array_equal(e[:, 7], 1.0)  # full energy
@@ -271,7 +304,7 @@ def test_invariants_under_random_and_adversarial_actions(kind, frame):
         pos = env.positions
         assert np.all((pos[:, 0] >= 0.0) & (pos[:, 0] <= x_max) & (pos[:, 1] >= 0.0) & (pos[:, 1] <= y_max))
         assert np.all((pos[:, 2] >= cfg.min_altitude) & (pos[:, 2] <= cfg.max_altitude))
-        e = obs["uav_0"]["swarm_proprio"]
+        e = swarm_proprio(obs)
         np.testing.assert_allclose(e[:, 7], (cfg.initial_energy - cfg.energy_decay * t) / cfg.initial_energy, atol=1e-6)
         assert np.all((e[:, 6] >= -1.0) & (e[:, 6] < 1.0))
         assert env.energy == pytest.approx(max(cfg.initial_energy - cfg.energy_decay * t, 0.0))
@@ -309,13 +342,13 @@ def test_paper_defaults_terminate_at_step_1000():
 def test_heading_wraps_and_body_frame_rotates_the_command():
     env = SwarmReconEnv(EXACT.replace(action_frame="body", yaw_rate_max=3.0))
     obs, _ = env.reset(seed=3, options={"positions": [[6.0, 6.0, Z], [3.0, 3.0, Z]]})
-    chi = obs["uav_0"]["swarm_proprio"][:, 6].astype(np.float64) * math.pi
+    chi = swarm_proprio(obs)[:, 6].astype(np.float64) * math.pi
     before = env.positions
     obs = env.step({a: np.array([1.0, 0.5, 0.0, 1.0], dtype=np.float32) for a in env.agents})[0]
     # Body frame: (forward, lateral) = (1, 0.5) m/s rotated by the heading before the update.
     expected = np.stack([np.cos(chi) - 0.5 * np.sin(chi), np.sin(chi) + 0.5 * np.cos(chi)], axis=1)
     np.testing.assert_allclose(env.positions[:, :2] - before[:, :2], expected, atol=1e-5)
-    new_chi = obs["uav_0"]["swarm_proprio"][:, 6].astype(np.float64) * math.pi
+    new_chi = swarm_proprio(obs)[:, 6].astype(np.float64) * math.pi
     wrapped = (chi + 3.0 + math.pi) % (2 * math.pi) - math.pi
     np.testing.assert_allclose(new_chi, wrapped, atol=1e-5)
     for _ in range(5):

@@ -142,7 +142,7 @@ def test_diagnostics_match_the_policy_step_by_step(model):
         start = np.zeros(n)
         with th.no_grad():
             decoded = policy.decode_map(th.as_tensor(state.map_state)).numpy()
-        target = obs["uav_0"]["global_map"].reshape(1, -1).astype(np.float64)
+        target = env.global_map.reshape(1, -1).astype(np.float64)
         map_errors.append(((decoded - target) ** 2).mean(-1))
         full_message = (sent.sum(0, keepdims=True) - sent) / (n - 1)
         # no_comm: every step is a dropout, so the best available message (kept in the state) is mhat_t

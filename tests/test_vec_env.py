@@ -39,7 +39,7 @@ def test_wrapper_stack_and_attributes(backend):
     assert vec_env.get_attr("config", indices=[0]) == [SMALL]
     assert vec_env.render_mode is None and vec_env.get_attr("render_mode") == [None] * 6
     assert vec_env.observation_space["global_map"].shape == (12, 12)
-    assert vec_env.observation_space == SwarmReconEnv(SMALL).observation_space("uav_0")
+    assert vec_env.observation_space == SwarmReconEnv(SMALL, critic_keys=True).observation_space("uav_0")
     assert vec_env.action_space == SwarmReconEnv(SMALL).action_space("uav_0")
     assert make_vec_env(1, n_agents=4, grid_width=20, backend=backend).n_agents == 4  # SwarmConfig overrides
     assert make_vec_env(1, config=SMALL, render_mode="rgb_array", backend=backend).render_mode == "rgb_array"

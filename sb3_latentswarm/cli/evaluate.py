@@ -31,7 +31,7 @@ EVALUATION_TABLES = ("conditions", "p_fail_sweep")
 """The tables an evaluation writes (``NAME.csv`` and ``NAME.md``)."""
 
 
-RECORD_IDENTITY = ("model_sha256", "config", "episodes", "env_seeds", "actions")
+RECORD_IDENTITY = ("model_sha256", "config", "env", "episodes", "env_seeds", "actions")
 """What every table of one evaluation folder shares; each table adds its own inputs (``requested``)."""
 
 
@@ -40,6 +40,14 @@ def command_evaluate(args: argparse.Namespace) -> int:
     on the env config saved with it unless ``--preset`` / ``--set`` say otherwise; tables into
     :func:`_evaluation_folder`."""
     model = load_model(args)
+    adapted_model = "global_map" not in getattr(model.observation_space, "spaces", {})
+    if adapted_model and args.adapted_env is None:
+        raise ValueError(
+            f"--model {args.model} was trained on an adapted env (its observations have no global_map); the model file "
+            "does not name the env (a file never names code to import): pass --env NAME --env-kwargs JSON as in train"
+        )
+    if not adapted_model and args.adapted_env is not None:
+        raise ValueError(f"--env {args.env}: --model {args.model} was trained on the swarm env; evaluate it without --env")
     preset = preset_from_args(args, model)
     if args.episodes:
         preset = dataclasses.replace(preset, eval_episodes=args.episodes)
@@ -74,6 +82,8 @@ def evaluate_and_print(
 
     :raise ValueError: when ``output`` holds the tables of another evaluation (:func:`_check_evaluation_folder`)
     """
+    if preset.env is not None:
+        baselines = False  # the planners move UAVs over a map: the swarm env only
     record = _evaluation_record(preset, args, model_path or args.model, p_fail_sweep=p_fail_sweep, baselines=baselines)
     record = _check_evaluation_folder(output, record)
     output.mkdir(parents=True, exist_ok=True)
@@ -87,6 +97,10 @@ def evaluate_and_print(
         write_json(output / EVALUATION_RECORD, record)
 
     config, episodes, seed = preset.config, preset.eval_episodes, eval_seed(args)
+    if preset.env is not None:
+        _evaluate_adapted(model, preset, args, p_fail_sweep, finished)
+        print(f"\nTables written to {output}/")
+        return
     seeds = evaluation.seed_range(seed, episodes)
     progress_bar = sys.stderr.isatty() and not args.no_progress
     policy_kwargs: dict[str, Any] = dict(
@@ -117,6 +131,30 @@ def evaluate_and_print(
         finished("p_fail_sweep", sweep, evaluation.to_markdown(sweep_summary))
         _print_table(f"p_f sweep (proposed, episode {seeds}, {actions} actions)", evaluation.to_markdown(sweep_summary))
     print(f"\nTables written to {output}/")
+
+
+def _evaluate_adapted(model, preset: Preset, args: argparse.Namespace, p_fail_sweep: bool, finished) -> None:
+    """The conditions (and the p_f sweep) on the adapted env of ``preset``, in the env's own metrics: mean episode
+    return, length, and for a registered env its metrics (simple_spread: ``final_landmarks_covered``,
+    ``sum_collisions``), each as mean ± std across episodes."""
+    from sb3_latentswarm.evaluation.adapted import evaluate_adapted_conditions, summarize_adapted
+
+    env, config, episodes, seed = preset.env, preset.config, preset.eval_episodes, eval_seed(args)
+    assert env is not None
+    settings: dict[str, Any] = dict(n_episodes=episodes, seed=seed, deterministic=not args.stochastic)
+    actions = "sampled" if args.stochastic else "mean"
+    where = f"{env.name}, {episodes} episodes each, episode {evaluation.seed_range(seed, episodes)}, {actions} actions"
+    table = evaluate_adapted_conditions(model, env, config, evaluation.CONDITIONS, **settings)
+    summary = summarize_adapted(table)
+    finished("conditions", table, evaluation.to_markdown(summary))
+    _print_table(f"Conditions (p_f = {config.p_fail}, link model {config.link_model}, {where})",
+                 evaluation.to_markdown(summary))
+    if p_fail_sweep:
+        frames = [evaluate_adapted_conditions(model, env, config, ("proposed",), p_fail=p, **settings) for p in preset.p_fails]
+        sweep = pd.concat(frames, ignore_index=True)
+        sweep_summary = summarize_adapted(sweep, by="p_fail")
+        finished("p_fail_sweep", sweep, evaluation.to_markdown(sweep_summary))
+        _print_table(f"p_f sweep (proposed, {where})", evaluation.to_markdown(sweep_summary))
 
 
 def _print_table(title: str, markdown: str) -> None:
@@ -154,6 +192,7 @@ def _evaluation_record(
         "model_sha256": file_sha256(model_path),
         "preset": preset.name,
         "config": preset.config.to_dict(),
+        "env": None if preset.env is None else preset.env.to_dict(),
         "episodes": episodes,
         "seed": args.seed,
         "env_seeds": [eval_seed(args), eval_seed(args) + episodes - 1],

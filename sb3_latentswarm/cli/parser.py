@@ -59,6 +59,21 @@ def add_action_mode(parser: argparse.ArgumentParser, when: str) -> None:
     )
     parser.set_defaults(stochastic=True)
 
+def add_env(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--env`` / ``--env-kwargs``: an adapted PettingZoo env instead of the swarm env (docs/own_env.md, docs/cli.md)."""
+    parser.add_argument(
+        "--env", default=None, metavar="NAME",
+        help=f"{what} on a PettingZoo ParallelEnv through the adapter instead of the swarm env: a registered name "
+        "(mpe2:simple_spread_v3, with its positions and metrics) or your Python entry point package.module:function "
+        "returning the env (imported: your code runs; never read from a file). The preset gives the algorithm "
+        "settings and budget, --set the link model (link_model=outage by default, p_fail, link_mode, ...)",
+    )
+    parser.add_argument(
+        "--env-kwargs", default=None, metavar="JSON",
+        help='keyword arguments of --env as a JSON object, e.g. \'{"N": 3, "num_agent_neighbors": 1}\'',
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sb3-latentswarm", description="Train and evaluate latent-state UAV swarms.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -196,6 +211,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="J",
         help="with --seeds: processes at a time (default: the cores this process may run on, at most K; more warns)",
     )
+    add_env(train, "train")
     train.set_defaults(preset=None, seed=None)
 
     evaluate = sub.add_parser("evaluate", help="evaluate a saved model on the five conditions of Table I")
@@ -211,6 +227,7 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument(
         "--no-baselines", action="store_true", help="skip the random, lawnmower and frontier planners (default: run them)"
     )
+    add_env(evaluate, "evaluate (a model trained with train --env)")
     evaluate.add_argument(
         "--output",
         default=None,
@@ -285,6 +302,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="run only these trials (e.g. proposed-seed2); the others stay pending for a later --resume",
     )
     sweep.add_argument("--resume", action="store_true", help="continue the sweep in --output; finished trials are kept")
+    add_env(sweep, "sweep (default variants then: proposed no_comm zero_substitute hold_last)")
     sweep.add_argument("--verbose", type=int, default=1, help="Ray Tune console: 0 silent, 1 status table, 2 trial results")
     sweep.set_defaults(threads=1)
     return parser

@@ -4,6 +4,7 @@ in a process of its own (:mod:`sb3_latentswarm.runs.train_seeds`) and report."""
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -11,6 +12,7 @@ from typing import Any
 from sb3_latentswarm.cli import resume_command
 from sb3_latentswarm.cli.evaluate import EVALUATION_TABLES
 from sb3_latentswarm.cli.settings import checked_training_preset, parse_overrides, train_settings
+from sb3_latentswarm.envs.adapted_env import AdaptedEnv
 from sb3_latentswarm.runs.run import find_start, required_room
 from sb3_latentswarm.runs.train_seeds import SEEDS_RECORD, SeedRun, run_seed_processes, seed_folder, seed_state
 from sb3_latentswarm.utils import threads as torch_threads
@@ -57,6 +59,8 @@ def command_train_seeds(args: argparse.Namespace, output: Path) -> int:
         )
     stored = (record or {}).get("options") or {}
     settings = train_settings(args, (record or {}).get("settings"), source=SEEDS_RECORD)
+    args.adapted_env = AdaptedEnv.from_record(settings, args.adapted_env, str(record_path))
+    args.env = settings["env"]
     recorded_total = ((record or {}).get("settings") or {}).get("total_timesteps")
     if recorded_total is not None and settings["total_timesteps"] != recorded_total:
         raise ValueError(
@@ -227,6 +231,8 @@ def _seed_argv(
         given = {name: options[name] for name in ("save_freq", "keep_checkpoints")}
         if options["tensorboard"] is not None:
             argv += ["--tensorboard", str(Path(options["tensorboard"]) / f"seed{seed}")]
+    if settings.get("env") is not None:  # also on resume: a seed's checkpoint never imports an entry point by itself
+        argv += ["--env", settings["env"], "--env-kwargs", json.dumps(settings.get("env_kwargs") or {})]
     for name, value in given.items():
         if value is not None:
             argv += [f"--{name.replace('_', '-')}", str(value)]

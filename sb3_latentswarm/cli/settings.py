@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import dataclasses
 import sys
 from pathlib import Path
 from typing import Any
@@ -67,6 +68,7 @@ def check_arguments(args: argparse.Namespace) -> None:
         set_torch_threads(args.threads)  # warns once past the available cores
     check_device(args)
     check_output_folder(args)
+    args.adapted_env = adapted_env_from_args(args)
     args.overrides = parse_overrides(args.set or [])
     if args.command in ("evaluate", "render"):
         targets = override_targets()
@@ -75,11 +77,42 @@ def check_arguments(args: argparse.Namespace) -> None:
                 raise ValueError(f"--set {name}: a training setting, which only `train` uses")
 
 
+def adapted_env_from_args(args: argparse.Namespace) -> Any:
+    """``--env`` with ``--env-kwargs`` as an :class:`~sb3_latentswarm.envs.adapted_env.AdaptedEnv` (``None`` without
+    ``--env``), its module imported now: a bad name, JSON or module fails before any work.
+
+    :raise ValueError: naming the option: ``--env-kwargs`` without ``--env``, bad JSON, a name that is neither
+        registered nor an entry point, a module that cannot be imported, ``--backend supersuit`` with ``--env``
+    """
+    name, text = getattr(args, "env", None), getattr(args, "env_kwargs", None)
+    if name is None:
+        if text is not None:
+            raise ValueError("--env-kwargs needs --env (the env they are for)")
+        return None
+    from sb3_latentswarm.envs.adapted_env import AdaptedEnv, parse_env_kwargs
+
+    env = AdaptedEnv(name, parse_env_kwargs(text))
+    if getattr(args, "backend", None) not in (None, "batched"):
+        raise ValueError(f"--backend {args.backend} steps the swarm env only; --env {name} runs through the adapter")
+    env.env_fn()
+    return env
+
+
 def preset_from_args(args: argparse.Namespace, model: Any = None) -> Preset:
-    """The ``--preset`` named, or, without one, the training config saved with ``model`` (else ``demo``), with the
-    ``--set`` overrides (``args.overrides``, :func:`check_arguments`)."""
+    """The ``--preset`` named, or, without one, the training config saved with ``model`` (else ``demo``), on
+    ``--env``'s adapted env if given (:meth:`Preset.with_env <sb3_latentswarm.presets.Preset.with_env>`), with the
+    ``--set`` overrides (``args.overrides``, :func:`check_arguments`). A model trained on an adapted env carries no
+    config; ``evaluate --env`` without ``--preset`` then takes the link model from the ``config.json`` that ``train``
+    wrote beside it."""
+    adapted_env = getattr(args, "adapted_env", None)
+    saved_links = _saved_adapted_config(args, model) if adapted_env is not None and args.preset is None else None
     if args.preset is not None:
         preset = get_preset(args.preset)
+    elif saved_links is not None:
+        preset = dataclasses.replace(get_preset("demo"), name="saved", config=saved_links,
+                                     description="the link config in config.json beside the model")
+        preset = preset.with_env(adapted_env, keep_links=True)
+        return preset.with_overrides(**args.overrides) if args.overrides else preset
     elif getattr(model, "swarm_config", None) is not None:
         preset = Preset(
             name="saved",
@@ -90,13 +123,34 @@ def preset_from_args(args: argparse.Namespace, model: Any = None) -> Preset:
         )
     else:
         preset = get_preset("demo")
+    preset = preset.with_env(adapted_env)
     return preset.with_overrides(**args.overrides) if args.overrides else preset
 
 
-RESUME_SETTINGS = ("preset", "set", "seed", "env_seed", "total_timesteps", "backend")
+def _saved_adapted_config(args: argparse.Namespace, model: Any) -> Any:
+    """The config ``train --env`` wrote beside ``--model`` (``config.json``: plain data, its link model), for
+    ``evaluate --env`` without ``--preset``; ``None`` when there is none.
+
+    :raise ValueError: a ``config.json`` that is not a valid ``SwarmConfig``, naming the file
+    """
+    path = Path(getattr(args, "model", None) or "").parent / "config.json"
+    if model is None or not path.is_file():
+        return None
+    from sb3_latentswarm.config import SwarmConfig
+    from sb3_latentswarm.utils.atomic import read_json
+
+    try:
+        return SwarmConfig(**read_json(path))
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{path}: not the config of a run ({error}); pass --preset and --set the link model") from None
+
+
+RESUME_SETTINGS = ("preset", "set", "seed", "env_seed", "total_timesteps", "backend", "env", "env_kwargs")
 """The ``train`` options a checkpoint stores and ``--resume`` compares (given ones must match, except a larger
 ``--total-timesteps``, which extends the run's budget; missing ones are taken from the checkpoint; a checkpoint
-without ``env_seed``, from before ``--env-seed``, seeded its env copies from ``seed``)."""
+without ``env_seed``, from before ``--env-seed``, seeded its env copies from ``seed``). ``env`` is a registered name
+or an entry point; a stored entry point is run only when ``--env`` names it again (:meth:`AdaptedEnv.from_record
+<sb3_latentswarm.envs.adapted_env.AdaptedEnv.from_record>`)."""
 
 
 def train_settings(
@@ -116,6 +170,8 @@ def train_settings(
         "env_seed": args.env_seed,
         "total_timesteps": args.total_timesteps,
         "backend": args.backend,
+        "env": getattr(args, "env", None),
+        "env_kwargs": None if getattr(args, "adapted_env", None) is None else dict(args.adapted_env.kwargs),
     }
     if stored:
         if stored.get("env_seed") is None:  # a run from before --env-seed: its env copies were seeded from --seed
@@ -126,6 +182,8 @@ def train_settings(
                 return parse_overrides(value) == parse_overrides(stored.get(name) or [])
             if name == "total_timesteps" and stored.get(name) is not None:  # a larger budget extends the run
                 return value >= stored[name]
+            if name == "env_kwargs":
+                return value == (stored.get(name) or {})
             return value == stored.get(name)
 
         differ = [
@@ -143,7 +201,8 @@ def train_settings(
         if given["total_timesteps"] is not None:
             resumed["total_timesteps"] = given["total_timesteps"]
         return resumed
-    defaults = {"preset": "demo", "set": [], "seed": 0, "total_timesteps": None, "backend": "batched"}
+    defaults = {"preset": "demo", "set": [], "seed": 0, "total_timesteps": None, "backend": "batched", "env": None,
+                "env_kwargs": None}
     settings = {name: defaults.get(name) if value is None else value for name, value in given.items()}
     if settings["env_seed"] is None:  # the default: copy c gets --seed + c, as before --env-seed
         settings["env_seed"] = settings["seed"]

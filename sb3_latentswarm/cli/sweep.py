@@ -19,13 +19,13 @@ def command_sweep(args: argparse.Namespace) -> int:
         signal's number when SIGINT / SIGTERM / SIGHUP stopped it (Ray Tune stopped cleanly; the resume command printed)
     """
     from sb3_latentswarm.experiments import SweepSpec, run_sweep
-    from sb3_latentswarm.experiments.spec import DEFAULT_VARIANTS
+    from sb3_latentswarm.experiments.spec import ADAPTED_DEFAULT_VARIANTS, DEFAULT_VARIANTS
     from sb3_latentswarm.experiments.sweep import SweepStopped
 
     spec = SweepSpec.create(
         args.preset,
         args.seeds,
-        variants=args.variant or DEFAULT_VARIANTS,
+        variants=args.variant or (DEFAULT_VARIANTS if args.adapted_env is None else ADAPTED_DEFAULT_VARIANTS),
         grid=_parse_grid(args.grid or []),
         overrides=args.overrides,  # --set, parsed by check_arguments
         extra_eval_sets=[_parse_eval_set(text) for text in args.eval_set or []],
@@ -34,6 +34,7 @@ def command_sweep(args: argparse.Namespace) -> int:
         deterministic=not args.stochastic,
         total_timesteps=args.total_timesteps,
         warm_start=args.warm_start,
+        env=args.adapted_env,
     )
     try:
         run_sweep(

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -13,6 +14,7 @@ from sb3_latentswarm.cli import resume_command
 from sb3_latentswarm.cli.evaluate import EVALUATION_TABLES, evaluate_and_print
 from sb3_latentswarm.cli.seeds import command_train_seeds
 from sb3_latentswarm.cli.settings import checked_training_preset, parse_overrides, train_settings
+from sb3_latentswarm.envs.adapted_env import AdaptedEnv
 from sb3_latentswarm.presets import Preset
 from sb3_latentswarm.runs.checkpoints import default_save_freq, resume_tensorboard
 from sb3_latentswarm.runs.run import CheckpointWriteError, Run, RunHooks, RunResult, RunSpec, RunStopped
@@ -51,6 +53,9 @@ def command_train(args: argparse.Namespace) -> int:
             )
         stored: dict[str, Any] = (run.state or {}).get("settings") or {}
         settings = train_settings(args, stored)
+        # a checkpoint may name a registered env; an entry point runs only when --env names it again (docs/security.md)
+        args.adapted_env = AdaptedEnv.from_record(settings, args.adapted_env, f"the checkpoint {run.start}")
+        args.env = settings["env"]
         args.preset, args.set, args.seed = settings["preset"], settings["set"], settings["seed"]
         args.backend, args.env_seed = settings["backend"], settings["env_seed"]
         args.overrides = parse_overrides(args.set)  # a resumed run's are its checkpoint's
@@ -136,6 +141,8 @@ class _TrainCommandHooks(RunHooks):
                 )
         else:
             overrides = f" with {' '.join(args.set)}" if args.set else ""
+            if preset.env is not None:
+                overrides += f" on {preset.env.name} {json.dumps(dict(preset.env.kwargs))}"
             print(
                 f"Training preset '{preset.name}'{overrides} for {end:,} agent-steps{rounded}: {preset.n_envs} swarms of "
                 f"{preset.config.n_agents}, n_steps {model.n_steps}, {end // per_rollout} updates, seed {args.seed} "

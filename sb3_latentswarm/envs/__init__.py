@@ -2,6 +2,7 @@
 and the adapter that makes any PettingZoo ``ParallelEnv`` a vec env ``LatentSwarmPPO`` trains on."""
 
 from sb3_latentswarm.envs import swarm_recon_v0
+from sb3_latentswarm.envs.adapted_env import AdaptedEnv
 from sb3_latentswarm.envs.batched_core import SwarmBatch
 from sb3_latentswarm.envs.parallel_adapter import AdaptedVecEnv, LinkSpec, make_adapted_vec_env
 from sb3_latentswarm.envs.swarm_recon import ACTOR_OBS_KEYS, OBS_KEYS, STATE_OBS_KEYS, SwarmReconEnv, parallel_env
@@ -12,6 +13,7 @@ apply_default_torch_threads_once()
 
 __all__ = [
     "ACTOR_OBS_KEYS",
+    "AdaptedEnv",
     "AdaptedVecEnv",
     "LinkSpec",
     "BatchedSwarmVecEnv",

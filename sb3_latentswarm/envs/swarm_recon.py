@@ -6,7 +6,10 @@ Agents                ``possible_agents = ["uav_0", ..., "uav_{N-1}"]`` (N = ``S
 Parallel API          yes; all agents start, terminate and truncate together (no agent is removed alone)
 Action space          ``Box(-1, 1, (4,), float32)``: ``[vx, vy, vz, yaw_rate]`` scaled by ``(v_max, v_max, vz_max,
                       yaw_rate_max)``; with ``action_frame="body"`` ``(vx, vy)`` are (forward, lateral), rotated by chi
-Observation space     ``Dict`` with the keys below (F = 2 * sensor_range + 1, H x W = grid_height x grid_width)
+Observation space     ``Dict`` of what the agent may see at execution time: ``local_obs``, ``proprio``, ``link_row``
+                      (and ``link_age`` with delay); see below (F = 2 * sensor_range + 1)
+State space           ``state_space = Box(-inf, inf, (N * 8 + H * W,), float32)``, :meth:`SwarmReconEnv.state`: the global
+                      state for a centralized critic (H x W = grid_height x grid_width)
 Reward                shared by all agents, Sec. II-B: ``r = w_cov r_cov + w_red r_red + w_coll r_coll``
 Termination           all agents, when the energy ``b_t = b_0 - kappa t`` is depleted or every cell has been observed
 Truncation            all agents, at ``t >= max_steps`` without termination
@@ -16,7 +19,11 @@ Implementation        the one-swarm (B = 1) view of :class:`~sb3_latentswarm.env
                       the model below once for any number of swarms (``make_vec_env``'s batched backend is another view)
 ====================  =====================================================================================================
 
-Observation of agent ``i`` (a ``gymnasium.spaces.Dict``; the actor uses the first three keys only):
+Observation of agent ``i`` (a ``gymnasium.spaces.Dict``), PettingZoo's convention: what the agent may see when it acts
+(its sensor patch, its own state, its link row, and ``link_age`` with delay); the global state comes from
+:meth:`SwarmReconEnv.state`. The last two rows, the critic's keys, are in the observation only with
+``SwarmReconEnv(..., critic_keys=True)``, the view the SB3 vec env of ``make_vec_env(backend="supersuit")`` steps:
+its centralized critic reads them from every slot (not for decentralized execution).
 
 =================  ================================  ================================================================
 key                space                             content
@@ -35,7 +42,9 @@ key                space                             content
 =================  ================================  ================================================================
 
 The last two keys are the global state ``s_t = ({e_t^i}, M_hat_t)`` of Sec. II, for the centralized critic only;
-:meth:`SwarmReconEnv.state` returns it as one flat float32 vector.
+:meth:`SwarmReconEnv.state` returns it as one flat float32 vector (``swarm_proprio`` flattened, then ``global_map``).
+Up to 0.2.0 every agent's observation held them: a MARL library that hands each actor its observation handed it the
+global state (CHANGELOG, Unreleased).
 
 Model (units: metres, seconds of ``dt``; the arena is ``[0, X] x [0, Y]`` with ``X = grid_width * cell_size``):
 
@@ -96,6 +105,9 @@ class SwarmReconEnv(ParallelEnv):
     :param config: the configuration; ``SwarmConfig()`` (the paper's settings) if ``None``.
     :param render_mode: ``None``, ``"rgb_array"`` (``render()`` returns an ``(H, W, 3)`` uint8 image) or ``"human"``
         (matplotlib window).
+    :param critic_keys: also put the global keys ``swarm_proprio`` and ``global_map`` into every agent's observation
+        (the SB3 vec env's view for a centralized critic, :func:`~sb3_latentswarm.envs.make_vec_env`); default
+        ``False``: PettingZoo's convention, the global state comes from :meth:`state`.
     :param overrides: ``SwarmConfig`` fields replacing those of ``config``, e.g. ``SwarmReconEnv(n_agents=5)``;
         unknown names raise ``TypeError``.
     """
@@ -104,8 +116,14 @@ class SwarmReconEnv(ParallelEnv):
         "name": "swarm_recon_v0", "render_modes": ["human", "rgb_array"], "render_fps": 10, "is_parallelizable": True
     }
 
-    def __init__(self, config: SwarmConfig | None = None, render_mode: str | None = None, **overrides: Any) -> None:
+    def __init__(
+        self, config: SwarmConfig | None = None, render_mode: str | None = None, *, critic_keys: bool = False,
+        **overrides: Any
+    ) -> None:
         config = resolve_config(config, **overrides)
+        if not isinstance(critic_keys, bool):
+            raise TypeError(f"critic_keys must be a bool, got {critic_keys!r}")
+        self.critic_keys = critic_keys
         self.check_render_mode(render_mode)
         self.config = config
         self.render_mode = render_mode
@@ -114,7 +132,9 @@ class SwarmReconEnv(ParallelEnv):
         self.agents: list[str] = []
         self.arena_size = config.arena_size
         self.action_spaces = {a: agent_action_space() for a in self.possible_agents}
-        self.observation_spaces = {a: agent_observation_space(config) for a in self.possible_agents}
+        full = agent_observation_space(config)
+        keys = [key for key in full.spaces if critic_keys or key not in STATE_OBS_KEYS]
+        self.observation_spaces = {a: spaces.Dict([(key, full[key]) for key in keys]) for a in self.possible_agents}
         self.state_space = spaces.Box(-np.inf, np.inf, (n * PROPRIO_DIM + config.n_cells,), np.float32)
         self._core = SwarmBatch(config, n_swarms=1)
         self._last_obs: dict[str, dict[str, np.ndarray]] = {}
@@ -238,8 +258,8 @@ class SwarmReconEnv(ParallelEnv):
         """The global state s_t = ({e_t^i}, M_hat_t) as one float32 vector of length N * 8 + H * W."""
         if not self._last_obs:
             raise RuntimeError("state() called before reset()")
-        first = self._last_obs[self.possible_agents[0]]
-        return np.concatenate([first["swarm_proprio"].ravel(), first["global_map"].ravel()]).astype(np.float32)
+        core = self._core
+        return np.concatenate([core.proprio[0].ravel(), core.global_map[0].ravel()]).astype(np.float32)
 
     def swarm_summary(self) -> dict[str, Any]:
         """Episode statistics so far (the ``swarm_summary`` info of the last step, which adds ``truncated``).
@@ -302,14 +322,15 @@ class SwarmReconEnv(ParallelEnv):
                 "local_obs": local_obs[i],
                 "proprio": proprio[i],
                 "link_row": link_rows[i],
-                "swarm_proprio": proprio,
-                "global_map": global_map,
             }
             for i, agent in enumerate(self.possible_agents)
         }
-        if core.link_ages is not None:
-            for i, agent in enumerate(self.possible_agents):
+        for i, agent in enumerate(self.possible_agents):  # in the order of the observation space
+            if core.link_ages is not None:
                 obs[agent][LINK_AGE_KEY] = core.link_ages[0, i]
+            if self.critic_keys:
+                obs[agent]["swarm_proprio"] = proprio
+                obs[agent]["global_map"] = global_map
         self._last_obs = obs
         return obs
 

@@ -5,7 +5,7 @@
 * ``"batched"`` (default): :class:`BatchedSwarmVecEnv`, an SB3 ``VecEnv`` directly over
   :class:`~sb3_latentswarm.envs.batched_core.SwarmBatch`, which steps all swarms with one set of array operations.
 * ``"supersuit"``: :class:`SwarmVecEnv` around SuperSuit's PettingZoo -> SB3 conversion,
-  ``concat_vec_envs_v1(pettingzoo_env_to_vec_env_v1(SwarmReconEnv), n_envs, base_class="stable_baselines3")``: the
+  ``concat_vec_envs_v1(pettingzoo_env_to_vec_env_v1(SwarmReconEnv(critic_keys=True)), n_envs, ...)``: the
   design's path through the PettingZoo env, one Python env per swarm; it alone runs the copies in several processes
   (``num_cpus > 1``) and gives access to the :class:`SwarmReconEnv` copies (``swarm_envs``).
 
@@ -400,7 +400,7 @@ def make_vec_env(
                 f"num_cpus={num_cpus} needs backend='supersuit' (the batched backend steps every swarm in this process)"
             )
         return VecMonitor(BatchedSwarmVecEnv(config, int(n_envs), seed=seed, render_mode=render_mode))
-    env = SwarmReconEnv(config, render_mode=render_mode)
+    env = SwarmReconEnv(config, render_mode=render_mode, critic_keys=True)  # every slot also carries the critic's keys
     venv = ss.concat_vec_envs_v1(
         ss.pettingzoo_env_to_vec_env_v1(env), int(n_envs), num_cpus=int(num_cpus), base_class="stable_baselines3"
     )

@@ -2,20 +2,38 @@
 own metrics: the mean agent return per episode, and whatever the env's ``metrics_fn`` measures (for MPE2
 ``simple_spread``, :func:`~sb3_latentswarm.envs.mpe.simple_spread_metrics`: ``final_landmarks_covered`` and
 ``sum_collisions``).
+
+:func:`evaluate_adapted_conditions` runs the test-time conditions of :mod:`~sb3_latentswarm.evaluation.conditions` on
+an :class:`~sb3_latentswarm.envs.adapted_env.AdaptedEnv` the way :func:`~sb3_latentswarm.evaluation.evaluate_conditions`
+runs them on the swarm env: each condition sets the link mode of the evaluation env (``full_comm``: every link up,
+``no_comm``: every link down, the others: the config's link model at ``p_fail``) and the policy's switches
+(``no_predictor``: zeros in place of the predicted message, ``hold_last``, ``no_memory``, ...), with the same episode
+seeds in every condition.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import pandas as pd
 import torch as th
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_latentswarm.utils.checks import check_int
+from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.evaluation.conditions import CONDITIONS, check_condition, condition_config, policy_switches
+from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
+from sb3_latentswarm.utils.checks import check_bool, check_int
 
-__all__ = ["adapted_episodes", "evaluate_adapted"]
+if TYPE_CHECKING:
+    from sb3_latentswarm.envs.adapted_env import AdaptedEnv
+
+__all__ = ["ADAPTED_COLUMNS", "adapted_episodes", "evaluate_adapted", "evaluate_adapted_conditions", "summarize_adapted"]
+
+ADAPTED_COLUMNS = ("episode", "seed", "condition", "p_fail", "return", "length")
+"""The first columns of :func:`evaluate_adapted_conditions`' rows; the env's ``final_<name>`` / ``sum_<name>`` metrics
+follow."""
 
 
 def adapted_episodes(
@@ -71,3 +89,97 @@ def evaluate_adapted(
     results = {key: float(np.mean([episode[key] for episode in episodes])) for key in episodes[0]}
     results["return_std"] = float(np.std([episode["return"] for episode in episodes]))
     return results
+
+
+def evaluate_adapted_conditions(
+    model: Any,
+    env: AdaptedEnv,
+    config: SwarmConfig,
+    conditions: Sequence[str] = CONDITIONS,
+    p_fail: float | None = None,
+    n_episodes: int = 10,
+    seed: int = 1_000_000,
+    deterministic: bool = False,
+) -> pd.DataFrame:
+    """The model on the adapted env ``env`` under each test-time condition, on the same episode seeds; one row per
+    episode (:data:`ADAPTED_COLUMNS`, then the env's own metrics, e.g. ``final_landmarks_covered`` and
+    ``sum_collisions`` for simple_spread). Episode ``k`` is the first episode of env copy ``k``, reset with seed
+    ``seed + k``: every row depends on its seed (and, with sampled actions, on the torch generator seeded with
+    ``seed``), the same in every condition.
+
+    :param model: a :class:`~sb3_latentswarm.LatentSwarmPPO` trained on an env of this kind
+    :param env: the env, by name (``--env``)
+    :param config: its link fields (``link_model``, ``p_fail``, ...; ``Preset.with_env``); each condition replaces
+        ``link_mode`` (and ``p_fail``)
+    :param conditions: names of :data:`~sb3_latentswarm.evaluation.CONDITION_TABLE`
+    :param p_fail: p_f of the link model; ``None`` keeps ``config.p_fail``
+    :param seed: episode ``k`` resets with ``seed + k`` (held out from training by default); the sampled actions
+        draw from a torch generator seeded with it
+    :param deterministic: mean actions instead of sampled ones (default: sampled, the paper's protocol)
+    :raise ValueError: an unknown condition, a bad count or p_f; a model without a latent-swarm policy under a
+        condition that switches one off
+    """
+    names = [check_condition(name).name for name in conditions]
+    check_int("n_episodes", n_episodes, low=1)
+    check_int("seed", seed, low=0)
+    check_bool("deterministic", deterministic)
+    policy = getattr(model, "policy", None)
+    if not isinstance(policy, LatentSwarmPolicy):
+        raise TypeError(f"model must be a LatentSwarmPPO, got {type(model).__name__}")
+    frames = []
+    for name in names:
+        cell = condition_config(config, name, config.p_fail if p_fail is None else p_fail)
+
+        def make_env(copies: int, first_seed: int, cell: SwarmConfig = cell) -> VecEnv:
+            return env.make_vec_env(copies, cell, first_seed, monitor=False)
+
+        with policy_switches(policy, name):
+            episodes = _first_episodes(model, make_env(n_episodes, seed), deterministic, seed)
+        frame = pd.DataFrame(episodes)
+        frame.insert(0, "episode", np.arange(n_episodes))
+        frame.insert(1, "seed", seed + np.arange(n_episodes))
+        frame.insert(2, "condition", name)
+        frame.insert(3, "p_fail", cell.p_fail)
+        frames.append(frame)
+    return pd.concat(frames, ignore_index=True)
+
+
+def _first_episodes(model: Any, env: VecEnv, deterministic: bool, seed: int) -> list[dict[str, float]]:
+    """The ``episode_metrics`` of the first episode of every copy of ``env``, in copy order (the copies that finish
+    early run on until the last one has finished; their later episodes are not kept)."""
+    n_agents = int(env.get_attr("n_agents", indices=0)[0])
+    n_copies = env.num_envs // n_agents
+    episodes: list[dict[str, float] | None] = [None] * n_copies
+    with th.random.fork_rng():
+        th.manual_seed(seed)
+        obs = env.reset()
+        state = None
+        starts = np.ones(env.num_envs, dtype=bool)
+        while any(episode is None for episode in episodes):
+            actions, state = model.predict(obs, state=state, episode_start=starts, deterministic=deterministic)
+            obs, _, starts, infos = env.step(actions)
+            for copy in np.flatnonzero(starts[::n_agents]):
+                if episodes[copy] is None:
+                    episodes[copy] = dict(infos[copy * n_agents]["episode_metrics"])
+    env.close()
+    return [episode for episode in episodes if episode is not None]
+
+
+def summarize_adapted(df: pd.DataFrame, by: str = "condition", decimals: int = 3) -> pd.DataFrame:
+    """Per group, the mean and the standard deviation (across episodes, ``ddof=1``) of every metric column of
+    :func:`evaluate_adapted_conditions`; one row per group in the order of first appearance.
+
+    :raise ValueError: ``by`` is not a column
+    """
+    if by not in df.columns:
+        raise ValueError(f"summarize_adapted: no column {by!r}; the DataFrame has {list(df.columns)}")
+    labels = ("episode", "seed", "condition", "p_fail", "eval_set", by)
+    metrics = [c for c in df.columns if c not in labels]
+    rows = []
+    for group, runs in df.groupby(by, sort=False):
+        row: dict[str, Any] = {by: group, "episodes": len(runs)}
+        for metric in metrics:
+            std = runs[metric].std(ddof=1) if len(runs) > 1 else float("nan")
+            row[metric] = f"{runs[metric].mean():.{decimals}f} ± {std:.{decimals}f}"
+        rows.append(row)
+    return pd.DataFrame(rows)

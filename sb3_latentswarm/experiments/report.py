@@ -3,7 +3,7 @@
 ``write_report(output)`` can be rerun at any time (``sb3-latentswarm sweep ... --resume`` does it after the trials):
 
 * ``episodes.csv``: every evaluation episode of every trial (tidy: one row per trial x cell x episode);
-* ``scores.csv``: one row per trial and cell, the run's scores (:data:`~.trial.SCORE_METRICS`);
+* ``scores.csv``: one row per trial and cell, the run's scores (:func:`~.trial.score_metrics`);
 * ``aggregate.csv`` / ``aggregate.md``: per (grid point, variant, cell) and metric, across training seeds, the IQM and
   the mean, each with its 95 % stratified-bootstrap interval (:mod:`.aggregate`);
 * ``intervals_<metric>.png``: bars (IQM) with interval whiskers per cell and variant, a panel per evaluation set;
@@ -22,7 +22,7 @@ import pandas as pd
 
 from sb3_latentswarm.experiments.aggregate import aggregate_scores, mean, stratified_bootstrap_ci
 from sb3_latentswarm.experiments.spec import SweepSpec, trial_id
-from sb3_latentswarm.experiments.trial import SCORE_METRICS, all_conditions, grid_labels, run_scores
+from sb3_latentswarm.experiments.trial import all_conditions, grid_labels, run_scores, score_metrics
 from sb3_latentswarm.utils.atomic import atomic_path, check_real_path, read_json, write_text
 
 METRIC_LABELS = {
@@ -364,7 +364,7 @@ def write_report(output: str | Path, commit: str | None = None) -> pd.DataFrame:
     with atomic_path(output / "scores.csv") as path:
         scores.to_csv(path, index=False)
     group_columns = [*grid_columns, *CELL_COLUMNS, "variant"]  # the variants of one cell side by side
-    aggregate = aggregate_scores(scores, group_columns, SCORE_METRICS)
+    aggregate = aggregate_scores(scores, group_columns, score_metrics(episodes))
     with atomic_path(output / "aggregate.csv") as path:
         aggregate.to_csv(path, index=False)
     markdown = aggregate_markdown(aggregate, group_columns)
@@ -391,8 +391,9 @@ def write_report(output: str | Path, commit: str | None = None) -> pd.DataFrame:
     )
     presets = sorted({r["preset"] for r in records})
     overrides = f", with {spec.overrides}" if spec.overrides else ""
+    on_env = "" if spec.env is None else f", on the adapted env {spec.env.name} {json.dumps(dict(spec.env.kwargs))}"
     facts = [
-        f"preset: {', '.join(presets)}{overrides}",
+        f"preset: {', '.join(presets)}{overrides}{on_env}",
         f"variants and training seeds finished: {seeds_per_variant}",
         f"trials: {len(records)} finished of the {spec.n_trials} planned in sweep.json"
         + (f"; grid {dict(spec.grid)}" if spec.grid else ""),

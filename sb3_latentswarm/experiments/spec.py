@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.envs.adapted_env import AdaptedEnv
 from sb3_latentswarm.experiments.trial import (
     EVAL_SEED_BASE,
     VARIANTS,
@@ -40,6 +41,7 @@ from sb3_latentswarm.utils.checks import check_bool, check_int
 from sb3_latentswarm.utils.seeding import warm_start_seed
 
 __all__ = [
+    "ADAPTED_DEFAULT_VARIANTS",
     "DEFAULT_VARIANTS",
     "EVALUATION_ONLY_SETTINGS",
     "MAX_GRID_POINTS",
@@ -51,6 +53,9 @@ __all__ = [
 
 DEFAULT_VARIANTS = ("proposed", "no_comm", "independent")
 """The variants a sweep trains unless told otherwise (the substitute-trained ones are asked for by name)."""
+ADAPTED_DEFAULT_VARIANTS = ("proposed", "no_comm", "zero_substitute", "hold_last")
+"""The variants a sweep on an adapted env (``--env``) trains unless told otherwise: the independent baseline is
+evaluated on the swarm env only."""
 EVALUATION_ONLY_SETTINGS = ("eval_episodes",)
 """Settings that change only the evaluation, not the training: refused as ``--grid`` names (two grid points would
 train the same model twice)."""
@@ -142,6 +147,11 @@ class SweepSpec:
     """Evaluate with the mean action (``True``) or sampled actions (``--stochastic``)."""
     total_timesteps: int | None = None
     """Training budget of every trial in agent-steps (``--total-timesteps``); ``None``: the preset's."""
+    env: AdaptedEnv | None = None
+    """The adapted env every trial trains and is evaluated on (``--env``, ``--env-kwargs``); ``None``: the swarm env.
+    ``sweep.json`` stores its name and keyword arguments; an entry point read back from it is never imported
+    (:meth:`AdaptedEnv.from_dict <sb3_latentswarm.envs.adapted_env.AdaptedEnv.from_dict>`): ``--resume`` names it
+    again."""
     warm_start: str | None = None
     """Folder of an earlier sweep (``--warm-start``): each trial continues that sweep's finished model of the same id
     (its weights, optimizer state and agent-step count; SB3's ``load`` + ``learn(reset_num_timesteps=False)``) up to
@@ -167,6 +177,7 @@ class SweepSpec:
         deterministic: bool = True,
         total_timesteps: int | None = None,
         warm_start: str | Path | None = None,
+        env: AdaptedEnv | None = None,
     ) -> SweepSpec:
         """Validate a sweep's arguments and return its spec; nothing is trained, no file is written.
 
@@ -176,6 +187,7 @@ class SweepSpec:
         :param eval_episodes: default ``overrides["eval_episodes"]``, else the preset's
         :param total_timesteps: the budget of every trial in agent-steps, >= 1 (default: the preset's)
         :param warm_start: an earlier sweep's folder whose finished models the trials continue (see :attr:`warm_start`)
+        :param env: an adapted env to run on (see :attr:`env`); its learners are LatentSwarmPPO variants only
         :raises ValueError, TypeError: for an unknown name, a grid of more than :data:`MAX_GRID_POINTS` points, a repeated
             or duplicate grid value, an evaluation-only grid
             name, a setting that ``SwarmConfig``, the vec env, ``LatentSwarmPPO`` or its policy refuses, or a
@@ -187,6 +199,11 @@ class SweepSpec:
         unknown = [v for v in variants if v not in VARIANTS]
         if unknown or not variants:
             raise ValueError(f"--variant: unknown variant(s) {unknown or list(variants)}; choose from {list(VARIANTS)}")
+        if env is not None and "independent" in variants:
+            raise ValueError(
+                "--variant independent: the independent RecurrentPPO baseline is evaluated on the swarm env only; with "
+                f"--env choose from {[v for v in VARIANTS if v != 'independent']}"
+            )
         grid_values: dict[str, tuple[Any, ...]] = {name: tuple(values) for name, values in (grid or {}).items()}
         overrides = dict(overrides or {})
         check_setting_names(list(grid_values), "--grid")
@@ -209,7 +226,7 @@ class SweepSpec:
             repeated = [v for i, v in enumerate(values) if v in values[:i]]  # 0.1 and 0.10, 1 and 1.0 are one value
             if repeated:
                 raise ValueError(f"--grid {name}: the values {list(values)} repeat {repeated}; give each value once")
-        base = trial_preset(preset, overrides, {})
+        base = trial_preset(preset, overrides, {}, env)
         if eval_episodes is None:
             eval_episodes = base.eval_episodes
         check_int("--eval-episodes", eval_episodes, low=1)
@@ -234,6 +251,7 @@ class SweepSpec:
             deterministic=deterministic,
             total_timesteps=total_timesteps,
             warm_start=warm_start,
+            env=env,
         )
         if spec.warm_start is not None:
             spec.check_warm_start()
@@ -251,7 +269,7 @@ class SweepSpec:
     def point_preset(self, grid_point: Mapping[str, Any]) -> Preset:
         """The preset a grid point's trials train and evaluate with: the named preset, the ``--set`` overrides, the
         point, and :attr:`total_timesteps` as the budget of every variant (the ``independent`` baseline's too)."""
-        preset = trial_preset(self.preset, self.overrides, dict(grid_point))
+        preset = trial_preset(self.preset, self.overrides, dict(grid_point), self.env)
         if self.total_timesteps is None:
             return preset
         return dataclasses.replace(preset, total_timesteps=self.total_timesteps, baseline_timesteps=self.total_timesteps)
@@ -276,11 +294,16 @@ class SweepSpec:
         if not (folder / "sweep.json").is_file():
             raise ValueError(f"--warm-start {folder}: no sweep.json there; give the folder of a finished sweep")
         earlier = SweepSpec.load(folder / "sweep.json")
-        names = ("preset", "grid")
-        differ = [name for name in names if json_values(getattr(self, name)) != json_values(getattr(earlier, name))]
+        names = ("preset", "grid", "env")
+
+        def plain(spec: SweepSpec, name: str) -> Any:
+            value = getattr(spec, name)
+            return json_values(value.to_dict() if name == "env" and value is not None else value)
+
+        differ = [name for name in names if plain(self, name) != plain(earlier, name)]
         if differ:
             sides = "; ".join(
-                f"{name}: {json_values(getattr(earlier, name))} there, {json_values(getattr(self, name))} here"
+                f"{name}: {plain(earlier, name)} there, {plain(self, name)} here"
                 for name in differ
             )
             raise ValueError(
@@ -387,14 +410,16 @@ class SweepSpec:
             "deterministic": self.deterministic,
             "total_timesteps": self.total_timesteps,
             "warm_start": self.warm_start,
+            **({} if self.env is None else self.env.to_dict()),
         }
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> SweepSpec:
         """The spec of :meth:`to_dict`'s output (JSON lists become tuples again); not re-validated. Keys added after a
-        spec was written (``total_timesteps``, ``warm_start``) take their defaults."""
-        expected = {f.name for f in dataclasses.fields(cls)}
-        required = expected - {"total_timesteps", "warm_start"}
+        spec was written (``total_timesteps``, ``warm_start``, ``env``) take their defaults; an entry point ``env`` is read
+        as data only (:meth:`AdaptedEnv.from_dict <sb3_latentswarm.envs.adapted_env.AdaptedEnv.from_dict>`)."""
+        expected = {f.name for f in dataclasses.fields(cls)} | {"env_kwargs"}
+        required = expected - {"total_timesteps", "warm_start", "env", "env_kwargs"}
         if not required <= set(data) <= expected:
             raise ValueError(f"a sweep spec has the keys {sorted(expected)}, got {sorted(data)}")
         return cls(
@@ -409,6 +434,7 @@ class SweepSpec:
             deterministic=data["deterministic"],
             total_timesteps=data.get("total_timesteps"),
             warm_start=data.get("warm_start"),
+            env=None if data.get("env") is None else AdaptedEnv.from_dict(data),
         )
 
     def save(self, path: str | Path) -> None:

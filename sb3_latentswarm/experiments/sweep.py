@@ -290,7 +290,9 @@ def _run_trial_in_tune(config: dict[str, Any], trials: dict[str, dict[str, Any]]
     # the node that ran it, for run.md (trial.py records the host name as "node")
     record = {**record, "ray_node_id": ray.get_runtime_context().get_node_id()}
     write_json(work / "trial.json", record)
-    final = {"agent_steps": float(record["trained_agent_steps"]), "eval_coverage": record["eval_coverage"]}
+    final = {"agent_steps": float(record["trained_agent_steps"]), "eval_return": record["eval_return"]}
+    if record["eval_coverage"] is not None:
+        final["eval_coverage"] = record["eval_coverage"]
     results = Path(tempfile.mkdtemp(prefix=f"{trial['trial_id']}-results-"))
     try:
         for name in TRIAL_FILES:

@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -29,6 +29,9 @@ from sb3_latentswarm.presets import Preset, get_preset
 from sb3_latentswarm.runs.run import RunHooks
 from sb3_latentswarm.utils.atomic import atomic_path, json_values, read_json, write_json
 from sb3_latentswarm.utils.seeding import training_env_seed, warm_start_seed
+
+if TYPE_CHECKING:
+    from sb3_latentswarm.envs.adapted_env import AdaptedEnv
 
 VARIANTS = ("proposed", "no_comm", "zero_substitute", "hold_last", "independent")
 """The learners a sweep trains: LatentSwarmPPO (``proposed``), the same trained without links (``no_comm``), the same
@@ -42,8 +45,19 @@ EVAL_SEED_BASE = evaluation.HELD_OUT_SEED
 PROGRESS_COLUMNS = ("agent_steps", "episode_reward", "coverage", "collisions")
 """The columns of a trial's ``progress.csv`` rows (:class:`TuneProgress`), besides the trial's labels."""
 SCORE_METRICS = ("coverage", "collisions", "steps_to_90", "reached_90")
-"""Per-run scores of an evaluation cell: means over its episodes (``steps_to_90`` over the episodes that reached 90 %
-coverage, NaN if none did; ``reached_90`` is the percentage that did)."""
+"""Per-run scores of an evaluation cell on the swarm env: means over its episodes (``steps_to_90`` over the episodes
+that reached 90 % coverage, NaN if none did; ``reached_90`` is the percentage that did). On an adapted env the scores
+are the env's own metrics (:func:`score_metrics`)."""
+
+
+def score_metrics(episodes: pd.DataFrame) -> tuple[str, ...]:
+    """The per-run scores of ``episodes``: :data:`SCORE_METRICS` on the swarm env; on an adapted env (rows of
+    :func:`~sb3_latentswarm.evaluation.adapted.evaluate_adapted_conditions`) the mean episode ``return`` and every
+    ``final_<name>`` / ``sum_<name>`` metric of the env (simple_spread: ``final_landmarks_covered``,
+    ``sum_collisions``, ...)."""
+    if "coverage" in episodes.columns:
+        return SCORE_METRICS
+    return ("return", *(c for c in episodes.columns if c.startswith(("final_", "sum_"))))
 
 
 @dataclass(frozen=True)
@@ -81,9 +95,12 @@ def default_eval_sets(preset: Preset) -> list[EvalSet]:
     return [EvalSet("table1")] + [EvalSet(f"p_fail={p:g}", {"p_fail": p}, ("proposed",)) for p in preset.p_fails]
 
 
-def trial_preset(preset_name: str, overrides: dict[str, Any], grid_point: dict[str, Any]) -> Preset:
-    """The preset of a trial: the named preset with the sweep's ``--set`` overrides, then its grid point."""
-    return get_preset(preset_name).with_overrides(**{**overrides, **grid_point})
+def trial_preset(
+    preset_name: str, overrides: dict[str, Any], grid_point: dict[str, Any], env: AdaptedEnv | None = None
+) -> Preset:
+    """The preset of a trial: the named preset on the sweep's adapted env (``--env``, if any), with the sweep's
+    ``--set`` overrides, then its grid point."""
+    return get_preset(preset_name).with_env(env).with_overrides(**{**overrides, **grid_point})
 
 
 def grid_labels(grid_point: dict[str, Any]) -> dict[str, Any]:
@@ -166,13 +183,22 @@ def evaluate_sets(
     n_episodes: int,
     eval_seed: int = EVAL_SEED_BASE,
     deterministic: bool = True,
+    env: AdaptedEnv | None = None,
 ) -> pd.DataFrame:
     """Per-episode rows (:data:`~sb3_latentswarm.evaluation.EPISODE_COLUMNS` plus ``eval_set``) of ``model`` in every
-    cell of ``eval_sets``, all on the env seeds ``eval_seed .. eval_seed + n_episodes - 1``."""
+    cell of ``eval_sets``, all on the env seeds ``eval_seed .. eval_seed + n_episodes - 1``; on the adapted env ``env``
+    the rows of :func:`~sb3_latentswarm.evaluation.adapted.evaluate_adapted_conditions` (the env's own metrics)."""
     frames = []
     for eval_set in eval_sets:
         conditions = conditions_for(variant, eval_set.conditions or all_conditions())
         if not conditions:
+            continue
+        if env is not None:
+            from sb3_latentswarm.evaluation.adapted import evaluate_adapted_conditions
+
+            frame = evaluate_adapted_conditions(model, env, config.replace(**eval_set.overrides), conditions,
+                                                n_episodes=n_episodes, seed=eval_seed, deterministic=deterministic)
+            frames.append(frame.assign(eval_set=eval_set.name))
             continue
         frame = evaluation.evaluate_conditions(
             model,
@@ -188,8 +214,12 @@ def evaluate_sets(
 
 
 def run_scores(episodes: pd.DataFrame, by: Sequence[str]) -> pd.DataFrame:
-    """One row per group ``by`` (a run in a cell) with its :data:`SCORE_METRICS`, means over the group's episodes."""
+    """One row per group ``by`` (a run in a cell) with its :func:`score_metrics`, means over the group's episodes, and
+    ``episodes``, their number."""
     grouped = episodes.groupby(list(by), sort=False, dropna=False)
+    if "coverage" not in episodes.columns:  # an adapted env: its own metrics
+        metrics = {name: (name, "mean") for name in score_metrics(episodes)}
+        return grouped.agg(**metrics, episodes=("return", "size")).reset_index()
     scores = grouped.agg(
         coverage=("coverage", "mean"),
         collisions=("collisions", "mean"),
@@ -315,7 +345,8 @@ def train_and_evaluate(
 
         def evaluate(model: Any) -> pd.DataFrame:
             return evaluate_sets(
-                model, variant, preset.config, spec.eval_sets, spec.eval_episodes, spec.eval_seed, spec.deterministic
+                model, variant, preset.config, spec.eval_sets, spec.eval_episodes, spec.eval_seed, spec.deterministic,
+                env=preset.env,
             )
 
         hooks = _TrialHooks(progress, warm_started, evaluate)
@@ -364,8 +395,11 @@ def train_and_evaluate(
         "eval_seconds": hooks.eval_seconds,
         "eval_sets": [s.to_dict() for s in spec.eval_sets],
         "deterministic": spec.deterministic,
-        # the first cell's proposed-condition means, for Tune's console
-        "eval_coverage": float(episodes["coverage"].iloc[: spec.eval_episodes].mean()),
+        # the first cell's proposed-condition means, for Tune's console (an adapted env: its return)
+        "eval_coverage": float(episodes["coverage"].iloc[: spec.eval_episodes].mean()) if preset.env is None else None,
+        "eval_return": float(episodes["episode_return" if preset.env is None else "return"].iloc[: spec.eval_episodes]
+                             .mean()),
+        "env": None if preset.env is None else preset.env.to_dict(),
     }
     write_json(output / "trial.json", json_values(record))
     return record
@@ -386,6 +420,7 @@ __all__ = [
     "finished_trial_dirs",
     "grid_labels",
     "run_scores",
+    "score_metrics",
     "train_and_evaluate",
     "trial_preset",
     "training_env_seed",

@@ -108,7 +108,8 @@ def alternate(
     rounds: int,
     on_run: Callable[[Run], None] | None = None,
 ) -> dict[str, list[Run]]:
-    """``python script *arguments`` on ``rev``'s package and on the working tree's, alternating, ``rounds`` rounds.
+    """``python script *arguments`` on ``rev``'s package and on the working tree's, alternating, ``rounds`` rounds
+    (old first in even rounds, new first in odd ones).
 
     :param script: the benchmark script (run by this interpreter, ``sys.executable``)
     :param arguments: its arguments; they must make it print one JSON line last
@@ -129,7 +130,9 @@ def alternate(
     with tempfile.TemporaryDirectory(prefix="sb3ls-compare-") as old_root:
         export_package(rev, old_root)
         for index in range(rounds):
-            for code, root in zip(CODES, (old_root, str(REPO))):
+            pairs = list(zip(CODES, (old_root, str(REPO))))
+            # old first in even rounds, new first in odd ones: a load that rises or falls over the run hits both alike
+            for code, root in pairs if index % 2 == 0 else pairs[::-1]:
                 result, cpu, wall = run_once(command, root)
                 run = Run(code, index, result, cpu, wall)
                 runs[code].append(run)

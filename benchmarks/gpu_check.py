@@ -17,8 +17,7 @@ Rows:
 * ``train minibatch``: one training minibatch as ``LatentSwarmPPO.train`` runs it (the joint loss of
   ``_minibatch_losses`` weighted by ``_loss_weights``, backward, gradient clipping, Adam step), on the first
   minibatch of a collected rollout. Variants: ``eager``; ``loss graph``: the loss function under
-  ``torch.compile(mode="reduce-overhead")`` (forward and backward captured as CUDA graphs); ``latent step``: only the
-  policy's latent update, through ``LatentSwarmPolicy.compile_latent_step(mode="reduce-overhead")``.
+  ``torch.compile(mode="reduce-overhead")`` (forward and backward captured as CUDA graphs).
 * ``rollout step``: one policy step of the rollout (``policy(obs, state, episode_starts, deterministic=True)`` under
   ``no_grad``, the actions copied to the host); variants ``eager`` and ``step graph`` (the step under
   ``torch.compile(mode="reduce-overhead")``).
@@ -61,12 +60,11 @@ DEVICE_TESTS = (
 TOLERANCE = {"float32": 1e-3, "bf16": 3e-2}
 """Relative tolerance of a compiled variant against eager, by the preset's precision (see the module docstring)."""
 VARIANTS = {
-    "train": ("eager", "loss graph", "latent step"),
+    "train": ("eager", "loss graph"),
     "rollout": ("eager", "step graph"),
 }
 """Measured variants of each phase; all but ``eager`` need CUDA."""
-ORDER = (("train", "eager"), ("rollout", "eager"), ("rollout", "step graph"), ("train", "latent step"),
-         ("train", "loss graph"))
+ORDER = (("train", "eager"), ("rollout", "eager"), ("rollout", "step graph"), ("train", "loss graph"))
 """The order the rows run in: eager first, then the compiled variants from the quickest compilation to the slowest
 (what passes ``--budget`` is SKIPPED)."""
 COLUMNS = ("check", "variant", "device", "preset", "status", "ms", "x_eager", "setup_s", "max_diff", "tolerance", "note")
@@ -164,8 +162,6 @@ def _train_functions(model: Any, variant: str) -> tuple[Any, Any]:
     if variant == "loss graph":
         _eager_random()
         return loss_fn, th.compile(loss_fn, mode="reduce-overhead")
-    if variant == "latent step":
-        return loss_fn, loss_fn  # the policy's latent step is compiled by measure_train
     raise ValueError(f"unknown training variant {variant!r}")
 
 
@@ -186,11 +182,7 @@ def measure_train(model: Any, variant: str, repeats: int) -> dict[str, Any]:
         return loss.detach().clone(), [th.zeros_like(p) if p.grad is None else p.grad.detach().clone() for p in parameters]
 
     reference_loss, reference_grads = gradients(eager)
-    eager_path = getattr(policy, "_compiled_latent_step", None)
     start = time.perf_counter()
-    if variant == "latent step":
-        _eager_random()
-        policy.compile_latent_step(mode="reduce-overhead")
     for _ in range(3):  # compile, record the CUDA graph, replay it
         loss, grads = gradients(compiled)
     setup_s = time.perf_counter() - start
@@ -215,19 +207,7 @@ def measure_train(model: Any, variant: str, repeats: int) -> dict[str, Any]:
 
     calls = {"variant": lambda: step(compiled, variant)}
     if variant != "eager":
-        if variant == "latent step":  # eager and compiled share the policy: switch the latent step per call
-            compiled_path = policy._compiled_latent_step
-
-            def eager_step() -> None:
-                policy._compiled_latent_step = eager_path
-                try:
-                    step(eager, "eager")
-                finally:
-                    policy._compiled_latent_step = compiled_path
-
-            calls["eager"] = eager_step
-        else:
-            calls["eager"] = lambda: step(eager, "eager")
+        calls["eager"] = lambda: step(eager, "eager")
     times = _timed(calls, repeats, device)
     return {**row, "status": "ok", "seconds": times["variant"], "eager_seconds": times.get("eager", times["variant"])}
 

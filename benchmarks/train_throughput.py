@@ -16,13 +16,9 @@ option), and its ratio to ``RecurrentPPO``.
 each; reports the rollout (env + policy), the training and the whole update in per-thread CPU seconds (torch runs on
 this one thread) and wall seconds, and the ratio of the whole update (target >= 1.25x on ``fast``).
 
-``--compile``: the same measurement on the batched backend, with the eager and the ``torch.compile``-d latent step
-(``compile_latent_step=True``); the first (warm-up) update carries the compilation, whose cost is reported.
-
     python benchmarks/train_throughput.py --hidden 64 512 --blocks 2
     python benchmarks/train_throughput.py --hidden 64 512 --blocks 2 --autocast bf16
     python benchmarks/train_throughput.py --backends --preset fast --iterations 2 --threads 1
-    python benchmarks/train_throughput.py --compile --preset fast --iterations 2 --threads 1
 """
 
 from __future__ import annotations
@@ -47,13 +43,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--autocast", choices=["bf16"], default=None,
                         help="also time LatentSwarmPPO(autocast=...) at each hidden size (default: float32 only)")
     parser.add_argument("--updates-per-block", type=int, default=1, help="updates per model per block")
-    parser.add_argument("--iterations", type=int, default=3, help="updates timed per backend (--backends, --compile)")
+    parser.add_argument("--iterations", type=int, default=3, help="updates timed per backend (--backends)")
     parser.add_argument("--threads", type=int, default=0,
-                        help="torch threads of --backends and --compile (0: the package default of one; the "
+                        help="torch threads of --backends (0: the package default of one; the "
                              "RecurrentPPO comparison always runs on one)")
     parser.add_argument("--backends", action="store_true", help="compare the vec env backends on a preset's update")
-    parser.add_argument("--compile", action="store_true", help="compare the eager and the compiled latent step")
-    parser.add_argument("--preset", default="fast", choices=sorted(PRESETS), help="preset of --backends and --compile")
+    parser.add_argument("--preset", default="fast", choices=sorted(PRESETS), help="preset of --backends")
     return parser
 
 
@@ -157,19 +152,18 @@ def compare_recurrent_ppo(args: argparse.Namespace) -> None:
 class UpdateTimer:
     """A ``LatentSwarmPPO`` of a preset on one backend, with the CPU and wall time of its rollouts and trainings."""
 
-    def __init__(self, preset_name: str, backend: str, compile_latent_step: bool = False) -> None:
+    def __init__(self, preset_name: str, backend: str) -> None:
         preset = get_preset(preset_name)
         env = make_vec_env(preset.n_envs, config=preset.config, seed=0, backend=backend)
         self.model = LatentSwarmPPO(
-            "LatentSwarmPolicy", env, seed=0, device="cpu", compile_latent_step=compile_latent_step, **preset.algo_kwargs
+            "LatentSwarmPolicy", env, seed=0, device="cpu", **preset.algo_kwargs
         )
         self.per_update = preset.algo_kwargs["n_steps"] * preset.n_envs * preset.config.n_agents
         self.times = {"rollout": [0.0, 0.0], "train": [0.0, 0.0]}  # [CPU, wall] seconds
         self.updates = 0
         self._timed("collect_rollouts", "rollout")
         self._timed("train", "train")
-        self.model.learn(self.per_update)  # warm-up update (compiles the latent step if asked), not counted
-        self.warm_up = (self.times["rollout"][0] + self.times["train"][0], self.times["rollout"][1] + self.times["train"][1])
+        self.model.learn(self.per_update)  # warm-up update, not counted
         self.times = {"rollout": [0.0, 0.0], "train": [0.0, 0.0]}
 
     def _timed(self, method: str, key: str) -> None:
@@ -219,31 +213,6 @@ def compare_backends(preset_name: str, iterations: int) -> None:
     print(f"rollout alone: {rollout:.2f}x (CPU)")
 
 
-def compare_compiled(preset_name: str, iterations: int) -> None:
-    timers = {"eager": UpdateTimer(preset_name, "batched"), "compiled": UpdateTimer(preset_name, "batched", True)}
-    for _ in range(iterations):
-        for timer in timers.values():
-            timer.update()
-    print(f"preset {preset_name}, batched backend: {iterations} update(s) after one warm-up update each, "
-          f"torch {th.get_num_threads()} thread(s)")
-    print("| latent step | first update s (CPU / wall) | rollout s (CPU) | train s (CPU) | update s (CPU) | update s (wall) |")
-    print("|---|---:|---:|---:|---:|---:|")
-    for name, timer in timers.items():
-        print(
-            f"| {name} | {timer.warm_up[0]:.1f} / {timer.warm_up[1]:.1f} | {timer.seconds('rollout', 0):.2f} | "
-            f"{timer.seconds('train', 0):.2f} | {timer.seconds('update', 0):.2f} | {timer.seconds('update', 1):.2f} |"
-        )
-    eager, compiled = timers["eager"], timers["compiled"]
-    compile_cpu, compile_wall = (
-        (compiled.warm_up[clock] - compiled.seconds("update", clock)) - (eager.warm_up[clock] - eager.seconds("update", clock))
-        for clock in (0, 1)
-    )
-    print(f"update, compiled vs eager: {eager.seconds('update', 0) / compiled.seconds('update', 0):.2f}x (CPU); "
-          f"train alone {eager.seconds('train', 0) / compiled.seconds('train', 0):.2f}x")
-    # inductor compiles in worker processes: this thread's CPU time misses their work, the wall time includes it
-    print(f"compile cost (extra seconds of the first update): {compile_wall:.0f} s wall, {compile_cpu:.0f} s CPU here")
-
-
 def main() -> None:
     parser = build_parser()
     args = parser.parse_args()
@@ -255,18 +224,15 @@ def main() -> None:
         parser.error(f"--chunk-length {args.chunk_length} must divide --n-steps {args.n_steps}")
     if args.threads < 0:
         parser.error(f"--threads must be >= 0 (0: the package default of one), got {args.threads}")
-    if args.autocast and (args.backends or args.compile):
-        parser.error("--autocast applies to the RecurrentPPO comparison only, not to --backends or --compile")
-    if args.threads > 1 and not (args.backends or args.compile):
+    if args.autocast and args.backends:
+        parser.error("--autocast applies to the RecurrentPPO comparison only, not to --backends")
+    if args.threads > 1 and not args.backends:
         parser.error("the RecurrentPPO comparison runs on one torch thread (it times this thread's CPU seconds); "
-                     "--threads applies to --backends and --compile")
+                     "--threads applies to --backends")
     if args.threads:
         set_torch_threads(args.threads)
     if args.backends:
         compare_backends(args.preset, args.iterations)
-        return
-    if args.compile:
-        compare_compiled(args.preset, args.iterations)
         return
 
     compare_recurrent_ppo(args)

@@ -52,9 +52,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: the package default of one)")
     parser.add_argument("--backend", default="batched", help="make_vec_env backend: batched or supersuit")
     parser.add_argument("--no-profile", action="store_true", help="do not count host syncs in the warm-up update")
-    parser.add_argument(
-        "--compile", action="store_true", help="torch.compile the policy's latent step (compile_latent_step=True)"
-    )
     parser.add_argument("--autocast", default=None, help="passed as LatentSwarmPPO(autocast=...), where supported")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", default=None, metavar="PATH",
@@ -279,8 +276,6 @@ def run(args: argparse.Namespace, device: th.device) -> dict[str, Any]:
         set_torch_threads(args.threads)
     preset = get_preset(args.preset)
     kwargs = dict(preset.algo_kwargs)
-    if args.compile:
-        kwargs["compile_latent_step"] = True
     if args.autocast is not None:
         kwargs["autocast"] = args.autocast
     if hasattr(preset, "make_model"):
@@ -322,7 +317,6 @@ def run(args: argparse.Namespace, device: th.device) -> dict[str, Any]:
         "cores": os.cpu_count(),
         "load_average": {"before": list(load_before), "after": list(os.getloadavg())},
         "backend": args.backend,
-        "compile_latent_step": bool(args.compile),
         "autocast": args.autocast,
         "parameters": sum(p.numel() for p in model.policy.parameters()),
         "agent_steps_per_update": per_update,
@@ -402,8 +396,6 @@ def compare(args: argparse.Namespace) -> dict[str, Any]:
     arguments = ["--preset", args.preset, "--device", args.device, "--updates", str(args.updates), "--warmup",
                  str(args.warmup), "--threads", str(args.threads), "--backend", args.backend, "--seed", str(args.seed),
                  "--no-profile", "--json", "-"]
-    if args.compile:
-        arguments.append("--compile")
     if args.autocast is not None:
         arguments += ["--autocast", args.autocast]
     header = "| code | round | " + " | ".join(COMPARED) + " | load before -> after |"

@@ -240,7 +240,7 @@ def test_gpu_check_runs_its_cpu_mode_and_says_what_it_skipped(tmp_path, capsys, 
                              variant) for phase, variant in gpu_check.ORDER), ("update (estimate)", "best / eager")]
     assert sorted(gpu_check.ORDER) == sorted((p, v) for p, variants in gpu_check.VARIANTS.items() for v in variants)
     for (_check, variant), row in by_name.items():
-        if variant in ("pytest", "loss graph", "latent step", "step graph"):
+        if variant in ("pytest", "loss graph", "step graph"):
             assert row["status"] == "SKIPPED" and row["note"], row
         else:
             assert row["status"] == "ok" and row["device"] == "cpu" and row["preset"] == "smoke", row
@@ -248,7 +248,7 @@ def test_gpu_check_runs_its_cpu_mode_and_says_what_it_skipped(tmp_path, capsys, 
         row = by_name[(check, "eager")]
         assert row["max_diff"] == 0.0 and row["ms"] > 0 and row["x_eager"] == 1.0
     table = (tmp_path / "table.md").read_text()
-    assert table.count("| SKIPPED |") == 4 and table.count("| ok |") == 3
+    assert table.count("| SKIPPED |") == 3 and table.count("| ok |") == 3
     assert (tmp_path / "table.csv").read_text().splitlines()[0] == ",".join(gpu_check.COLUMNS)
     written = json.loads((tmp_path / "results.json").read_text())
     assert written["device"] == "cpu" and "CUDA" in written["cuda_skipped"] and len(written["rows"]) == len(rows)

@@ -380,31 +380,14 @@ def test_truncated_swarms_are_bootstrapped_with_the_critic():
     assert np.all(model._truncation_values(infos, dones) == 0)
 
 
-def test_compiled_latent_step_matches_eager_and_is_saved(tmp_path):
-    model = make_model(compile_latent_step=True)
-    assert model.policy._compiled_latent_step is not None  # compiled lazily, at the first call
+def test_compile_latent_step_is_removed_with_a_clear_error(tmp_path):
+    with pytest.raises(ValueError, match="compile_latent_step=True was removed.*never paid back"):
+        make_model(compile_latent_step=True)
+    model = make_model(compile_latent_step=False)  # the old default still accepted
+    assert not hasattr(model.policy, "compile_latent_step")
+    model.compile_latent_step = True  # what a file saved with the flag on holds
     model.save(tmp_path / "compiled")
-    loaded = LatentSwarmPPO.load(tmp_path / "compiled", env=model.env)
-    assert loaded.compile_latent_step and loaded.policy._compiled_latent_step is not None
-    assert make_model().policy._compiled_latent_step is None  # off by default
-
-    # The graph capture (TorchDynamo; the "eager" backend skips the slow code generation) gives eager's numbers.
-    eager = make_model().policy
-    compiled = copy.deepcopy(eager)
-    compiled.compile_latent_step(backend="eager")
-    obs = random_obs(eager, n_swarms=2, n_agents=3, seed=1)
-    starts = th.tensor([1.0, 0.0, 0.0, 0.0, 1.0, 0.0])
-    outputs = []
-    for policy in (eager, compiled):
-        state = LatentState(*(s.requires_grad_() for s in random_state(policy, 6, seed=2)))
-        step = policy.latent_step(obs, state, starts)
-        loss = sum(field.square().sum() for field in step.state) + step.predicted_message.sum()
-        grads = th.autograd.grad(loss, [*policy.parameters(), state.map_state], allow_unused=True)
-        outputs.append((step, grads))
-    (step_e, grads_e), (step_c, grads_c) = outputs
-    for a, b in zip(step_e.state, step_c.state):
-        assert th.allclose(a, b, atol=1e-6)
-    assert th.equal(step_e.has_message, step_c.has_message)
-    assert [g is None for g in grads_e] == [g is None for g in grads_c]  # the heads are not part of the step
-    for a, b in zip(grads_e, grads_c):
-        assert a is None or th.allclose(a, b, atol=1e-6)
+    with pytest.warns(DeprecationWarning, match="runs eagerly"):
+        loaded = LatentSwarmPPO.load(tmp_path / "compiled", env=model.env)
+    assert not hasattr(loaded, "compile_latent_step")
+    loaded.learn(loaded.n_steps * loaded.n_envs)

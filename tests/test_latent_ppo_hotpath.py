@@ -14,6 +14,7 @@ from torch.overrides import TorchFunctionMode
 from sb3_latentswarm import LatentSwarmPPO, SwarmConfig
 from sb3_latentswarm.envs import make_vec_env
 from sb3_latentswarm.latent_ppo.policies import SequenceLinear, gru_cell
+from sb3_latentswarm.latent_ppo.recurrence import SequenceGRUCell, gru_update
 from sb3_latentswarm.latent_ppo.value_norm import ValueNorm
 
 SMALL = SwarmConfig(n_agents=3, grid_width=10, grid_height=10, max_steps=7, num_obstacles=5, p_fail=0.5)
@@ -110,6 +111,46 @@ def test_sequence_linear_sums_the_weight_gradient_once_per_sequence(dtype):
             assert cosine > 0.999
     with th.no_grad():
         assert th.equal(recurrence(weight, bias, added, hidden, True, dtype), expected_states)
+
+
+def gru_sequence(cell, inputs, added, hidden, fused, dtype=th.float32):
+    """A GRU over T steps: one SequenceGRUCell node per step (fused) or gru_cell's autograd ops; stacked states."""
+    states = []
+    if fused:
+        hidden_linear = SequenceLinear(cell.weight_hh, cell.bias_hh, dtype)
+        step = SequenceGRUCell(SequenceLinear(cell.weight_ih, None, dtype), hidden_linear)
+    for inputs_t, added_t in zip(inputs.unbind(0), added.unbind(0)):
+        if fused:
+            hidden = step(inputs_t, added_t, hidden)
+        else:
+            input_gates = th.addmm(added_t.to(dtype), inputs_t.to(dtype), cell.weight_ih.to(dtype).t())
+            hidden_gates = th.addmm(cell.bias_hh.to(dtype), hidden.to(dtype), cell.weight_hh.to(dtype).t())
+            hidden = gru_update(input_gates, hidden_gates, hidden)
+        states.append(hidden)
+    return th.stack(states)
+
+
+@pytest.mark.parametrize("dtype", [th.float32, th.bfloat16])
+def test_the_fused_gru_node_has_autograds_gradients(dtype):
+    generator = th.Generator().manual_seed(0)
+    cell = th.nn.GRUCell(12, 16)
+    inputs = th.randn(6, 5, 12, generator=generator).requires_grad_()  # (T, B, K)
+    added = th.randn(6, 5, 48, generator=generator).requires_grad_()  # an observed projection with the bias
+    hidden = th.randn(5, 16, generator=generator).requires_grad_()
+    readout = th.randn(6, 5, 16, generator=generator)
+    leaves = [inputs, added, hidden, cell.weight_ih, cell.weight_hh, cell.bias_hh]
+    results = {}
+    for fused in (True, False):
+        states = gru_sequence(cell, inputs, added, hidden, fused, dtype)
+        results[fused] = states, th.autograd.grad((states * readout).sum(), leaves)
+    (states, grads), (expected_states, expected_grads) = results[True], results[False]
+    assert th.equal(states, expected_states)  # gru_update's forward
+    for got, expected in zip(grads, expected_grads):
+        if dtype == th.float32:
+            th.testing.assert_close(got, expected, atol=1e-5 * float(expected.abs().max()), rtol=0)
+        else:  # bf16: the weight gradient summed once in a float32-accumulating GEMM instead of per step in bf16
+            cosine = th.nn.functional.cosine_similarity(got.flatten().double(), expected.flatten().double(), dim=0)
+            assert cosine > 0.999
 
 
 @pytest.mark.parametrize("autocast", [None, "bf16"])

@@ -37,7 +37,7 @@ from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.envs.vec_env import check_vec_normalize
-from sb3_latentswarm.latent_ppo.arguments import check_algorithm_values, fitting_chunk_length
+from sb3_latentswarm.latent_ppo.arguments import COMPILE_REMOVED, check_algorithm_values, fitting_chunk_length
 from sb3_latentswarm.latent_ppo.buffers import SwarmRolloutBuffer
 from sb3_latentswarm.latent_ppo.model_file import UnsafeModelFileError, load_plain, read_data, save_plain
 from sb3_latentswarm.latent_ppo.policies import (
@@ -160,9 +160,8 @@ class LatentSwarmPPO(RecurrentPPO):
     :param huber_delta: the Huber loss's threshold, in the critic's units (normalized when ``normalize_value``)
     :param log_grad_norms: log the gradient norm of each weighted loss term (``train/grad_norm_<term>``) on the first
         minibatch of every update (costs one extra backward pass per term and update)
-    :param compile_latent_step: run the policy's per-step latent update through ``torch.compile`` (off by default;
-        see :meth:`LatentSwarmPolicy.compile_latent_step`: faster steps after a one-time compilation of tens of
-        seconds per graph, ``benchmarks/train_throughput.py --compile`` measures both)
+    :param compile_latent_step: removed after 0.2.0 (``True`` raises ``ValueError``): ``torch.compile`` of the latent step
+        never paid back its compilation within a ``coordination`` run (``docs/algorithm.md``)
     :param autocast: ``None`` (float32, the default) or ``"bf16"``: the latent forward pass (GRUs, message predictor,
         map decoder, critic trunk) runs under bfloat16 autocast, in rollouts, training and ``predict`` alike; the latent
         state, the action heads, log-probabilities, the PPO ratio, ValueNorm and the losses stay float32 (see
@@ -265,7 +264,6 @@ class LatentSwarmPPO(RecurrentPPO):
         self.value_loss = value_loss
         self.huber_delta = huber_delta
         self.log_grad_norms = log_grad_norms
-        self.compile_latent_step = bool(compile_latent_step)
         self.autocast = autocast
         self.n_agents: int | None = None
         self.save_format = SAVE_FORMAT
@@ -337,8 +335,7 @@ class LatentSwarmPPO(RecurrentPPO):
         if not isinstance(self.policy, LatentSwarmPolicy):
             raise ValueError("LatentSwarmPPO needs a LatentSwarmPolicy")
         self.policy.autocast = self.autocast
-        if self.compile_latent_step:
-            self.policy.compile_latent_step()
+        self.__dict__.pop("compile_latent_step", None)  # the saved flag of a file from 0.2.0 or earlier (see load)
         self._setup_rollout_state()
         self.clip_range = FloatSchedule(self.clip_range)
         if self.clip_range_vf is not None:
@@ -436,6 +433,10 @@ class LatentSwarmPPO(RecurrentPPO):
             raw, _ = read_data(path)
         check_save_format(raw, path)
         raw = {**raw, "policy_kwargs": with_legacy_defaults(raw.get("policy_kwargs"))}
+        if raw.get("compile_latent_step"):  # saved by 0.2.0 or earlier with the flag on
+            warnings.warn(f"{path}: {COMPILE_REMOVED.split(':')[0]}; the saved flag is ignored, the model runs eagerly",
+                          DeprecationWarning, stacklevel=2)
+            raw["compile_latent_step"] = False
         n_envs = getattr(env, "num_envs", 1) if env is not None else None  # its rollout buffer counts in the budget
         model = load_plain(cls, path, raw, device=device, print_system_info=print_system_info, n_envs_to_train=n_envs,
                            **kwargs)

@@ -296,7 +296,6 @@ class LatentSwarmPolicy(BasePolicy):
             TanhSquashedGaussianDistribution if squashed else UnvalidatedDiagGaussianDistribution
         )
         self.action_dist = gaussian(self.action_dim)
-        self._compiled_latent_step: Callable[..., StepOutput] | None = None
         self.autocast = None
 
         if ortho_init:
@@ -412,14 +411,12 @@ class LatentSwarmPolicy(BasePolicy):
         return obs[self.layout.position_key].float()
 
     def recurrent_step(self, inputs: StepInputs, state: LatentState) -> StepOutput:
-        """The latent updates of one step (Sec. III), under the policy's :attr:`autocast` (compiled after
-        :meth:`compile_latent_step`); outputs in float32.
+        """The latent updates of one step (Sec. III), under the policy's :attr:`autocast`; outputs in float32.
 
         :param inputs: :meth:`step_inputs` of this step, leading dim B
         :param state: the state carried in from step t-1, (B, ...) per field
         """
-        step = self._eager_recurrent_step if self._compiled_latent_step is None else self._compiled_latent_step
-        return self._in_latent_precision(step, inputs, state)
+        return self._in_latent_precision(swarm_step, self, inputs, state)
 
     def agent_step(self, inputs: AgentInputs, state: LatentState) -> StepOutput:
         """:func:`~sb3_latentswarm.latent_ppo.recurrence.agent_update` for any batch of agents whose received messages
@@ -439,17 +436,6 @@ class LatentSwarmPolicy(BasePolicy):
             out.sent_message.float(),
         )
 
-    def compile_latent_step(self, **compile_kwargs: Any) -> None:
-        """Run the latent updates of :meth:`recurrent_step` through ``torch.compile`` from now on (rollouts and
-        training).
-
-        Compilation is lazy: the first call with each new batch size and grad mode compiles (tens of seconds per
-        graph on a CPU with the default inductor backend), later calls reuse the graph.
-
-        :param compile_kwargs: keyword arguments of ``torch.compile`` (e.g. ``backend``, ``mode``)
-        """
-        self._compiled_latent_step = th.compile(self._eager_recurrent_step, **compile_kwargs)
-
     @property
     def autocast(self) -> str | None:
         """``None`` (float32) or ``"bf16"``: bfloat16 autocast of the latent forward pass (GRU and predictor GEMMs, map
@@ -468,9 +454,6 @@ class LatentSwarmPolicy(BasePolicy):
         if self.autocast is None:
             return contextlib.nullcontext()
         return th.autocast(self.device.type, dtype=th.bfloat16)
-
-    def _eager_recurrent_step(self, inputs: StepInputs, state: LatentState) -> StepOutput:
-        return swarm_step(self, inputs, state)
 
     # ------------------------------------------------------------------ heads
     def bound_log_std(self, raw: th.Tensor) -> th.Tensor:
@@ -627,12 +610,12 @@ class LatentSwarmPolicy(BasePolicy):
     def chunked_replay(self) -> bool:
         """Whether :meth:`evaluate_sequences` replays with the chunk-batched GEMMs of :meth:`_replay_latent_sequence`
         (under :attr:`autocast`, and on devices other than the CPU) rather than one :meth:`recurrent_step` per step, the
-        rollout's own computation (float32 on the CPU, and after :meth:`compile_latent_step`).
+        rollout's own computation (float32 on the CPU).
 
         Chosen by measurement (``docs/algorithm.md``, "The training replay"): 1.21x on a bf16 ``paper`` minibatch on one
         CPU thread (Intel AMX), 0.86-0.99x in float32 there, 22 % fewer aten ops (what a host-bound GPU step pays for).
         """
-        return self._compiled_latent_step is None and (self.autocast is not None or self.device.type != "cpu")
+        return self.autocast is not None or self.device.type != "cpu"
 
     def _replay_latent_steps(self, inputs: StepInputs, state: LatentState) -> tuple[th.Tensor, ...]:
         """The latent updates of a training sequence, one :meth:`recurrent_step` per step (the rollout's computation).

@@ -42,6 +42,7 @@ __all__ = [
     "AgentInputs",
     "EagerLinears",
     "Linears",
+    "SequenceGRUCell",
     "SequenceLinear",
     "SequenceLinears",
     "StepInputs",
@@ -295,9 +296,9 @@ class SequenceLinears:
     """The layers of :func:`agent_update` over a time-major sequence, step :attr:`t` at a time: each input projection is
     split by input columns into the blocks read from the observation (:data:`OBSERVED_BLOCKS`), projected once for all
     T * B rows at the first call (the bias rides on them), and the blocks that depend on the recurrence, projected per
-    step by a :class:`SequenceLinear` (weights cast once to ``dtype``, weight gradient summed once per sequence). The
-    sums of the split projections round differently from one GEMM: float32 results agree with :class:`EagerLinears`
-    to about 1e-6.
+    step by a :class:`SequenceLinear` (weights cast once to ``dtype``, weight gradient summed once per sequence); each
+    GRU step is one :class:`SequenceGRUCell` node (gate arithmetic and its backward fused). The sums of the split
+    projections round differently from one GEMM: float32 results agree with :class:`EagerLinears` to about 1e-6.
 
     :param sequence: the observed blocks of the whole sequence by name, (T, B, width) each
     :param dtype: the GEMMs' dtype (the autocast dtype, or the weights')
@@ -330,17 +331,25 @@ class SequenceLinears:
             self._layers[layer] = _SplitLinear(observed, recurrent, hidden_linear)
         return self._layers[layer]
 
+    @staticmethod
+    def _recurrent_inputs(blocks: Blocks) -> th.Tensor:
+        return _cat([block for name, block in blocks if name not in OBSERVED_BLOCKS])
+
     def _project(self, split: _SplitLinear, blocks: Blocks) -> th.Tensor:
         added = split.observed[self.t] if split.observed else None
         if split.recurrent is None:
             assert added is not None  # a layer has at least one block
             return added
-        return split.recurrent(_cat([block for name, block in blocks if name not in OBSERVED_BLOCKS]), added)
+        return split.recurrent(self._recurrent_inputs(blocks), added)
 
     def gru(self, cell: nn.GRUCell, blocks: Blocks, hidden: th.Tensor) -> th.Tensor:
         split = self._split(cell, cell.weight_ih, cell.bias_ih, blocks, (cell.weight_hh, cell.bias_hh))
         assert split.hidden is not None
-        return gru_update(self._project(split, blocks), split.hidden(hidden), hidden)
+        added = split.observed[self.t] if split.observed else None
+        if split.recurrent is None:  # every input column observed: only W_hh h is per step
+            assert added is not None
+            return gru_update(added, split.hidden(hidden), hidden)
+        return SequenceGRUCell(split.recurrent, split.hidden)(self._recurrent_inputs(blocks), added, hidden)
 
     def predictor(self, blocks: Blocks) -> th.Tensor:
         first, activation, last = self.policy.message_predictor  # Linear, Tanh, Linear
@@ -368,11 +377,10 @@ def replay_sequence(policy: LatentSwarmPolicy, inputs: StepInputs, state: Latent
 
     :param inputs: :class:`StepInputs` of the sequence, leading dims (T, B)
     :param state: the state carried into the first step, (B, ...) per field
-    :param linears: ``"eager"``: the policy's ``recurrent_step`` per step (the rollout's computation, compiled when
-        the policy's step is); ``"sequence"``: :class:`SequenceLinears`
+    :param linears: ``"eager"``: the policy's ``recurrent_step`` per step (the rollout's computation);
+        ``"sequence"``: :class:`SequenceLinears`
     :return: tau_t, mu_t, m_t, mhat_t (T, B, dim each, float32) and has_message (T, B)
     """
-    n_steps = inputs.keep.shape[0]
     if linears == "sequence":
         weight_dtype = policy.map_encoder.weight_ih.dtype
         dtype = weight_dtype if policy.autocast is None else th.get_autocast_dtype(policy.device.type)
@@ -382,8 +390,11 @@ def replay_sequence(policy: LatentSwarmPolicy, inputs: StepInputs, state: Latent
                     "prev_local_obs": prev_local_obs}
         sequence_linears = SequenceLinears(policy, sequence, dtype)
     outputs: list[list[th.Tensor]] = [[], [], [], [], []]
-    for t in range(n_steps):
-        step_inputs = StepInputs._make(None if field is None else field[t] for field in inputs)
+    # one unbind per field instead of an indexing op per field and step (views either way); an absent field stays None
+    n_steps = inputs.keep.shape[0]
+    per_step = [(None,) * n_steps if field is None else field.unbind(0) for field in inputs]
+    for t, step_fields in enumerate(zip(*per_step)):
+        step_inputs = StepInputs._make(step_fields)
         if linears == "sequence":
             sequence_linears.t = t
             step = swarm_step(policy, step_inputs, state, sequence_linears)
@@ -421,12 +432,40 @@ def gru_update(input_gates: th.Tensor, hidden_gates: th.Tensor, hidden: th.Tenso
     :param hidden: h, (B, hidden_size), float32
     :return: h', (B, hidden_size), float32
     """
-    input_r, input_z, input_n = input_gates.float().chunk(3, dim=-1)
-    hidden_r, hidden_z, hidden_n = hidden_gates.float().chunk(3, dim=-1)
-    reset = th.sigmoid(input_r + hidden_r)
-    update = th.sigmoid(input_z + hidden_z)
-    new = th.tanh(input_n + reset * hidden_n)
-    return (hidden - new) * update + new
+    return _gru_gates(input_gates, hidden_gates, hidden)[0]
+
+
+def _gru_gates(input_gates: th.Tensor, hidden_gates: th.Tensor,
+               hidden: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
+    """:func:`gru_update` and what its backward reads: h', [r, z] (B, 2 hidden_size), n, W_hn h + b_hn and h - n."""
+    size = hidden.shape[-1]
+    input_gates, hidden_gates = input_gates.float(), hidden_gates.float()
+    # r and z in one op (element-wise, so the same numbers as GRUCell's two where the rows are whole SIMD vectors)
+    reset_update = th.sigmoid(input_gates[:, : 2 * size] + hidden_gates[:, : 2 * size])
+    hidden_n = hidden_gates[:, 2 * size :]
+    new = th.tanh(input_gates[:, 2 * size :] + reset_update[:, :size] * hidden_n)
+    kept = hidden - new
+    return kept * reset_update[:, size:] + new, reset_update, new, hidden_n, kept
+
+
+class SequenceGRUCell:
+    """One step of a GRU cell (:func:`gru_update` of its two projections) as one autograd node, in a recurrence whose
+    projections are :class:`SequenceLinear`: the forward pass is :func:`gru_update`'s, the backward pass computes the
+    gates' gradients in a few fused element-wise ops (instead of autograd's one node per op) and hands each projection's
+    (gradient, input) pair to its :class:`SequenceLinear`, which sums the weight gradient once per sequence.
+
+    :param input_linear: W_ih (or its recurrent columns) and b_ih (or None when an observed projection carries it)
+    :param hidden_linear: W_hh and b_hh
+    """
+
+    def __init__(self, input_linear: SequenceLinear, hidden_linear: SequenceLinear) -> None:
+        self.input_linear, self.hidden_linear = input_linear, hidden_linear
+
+    def __call__(self, inputs: th.Tensor, added: th.Tensor | None, hidden: th.Tensor) -> th.Tensor:
+        """h' for x_t ``inputs`` (B, K), c_t ``added`` (B, 3 hidden_size) or None and h ``hidden`` (B, hidden_size)."""
+        if not (self.input_linear.tracked and self.hidden_linear.tracked):
+            return gru_update(self.input_linear(inputs, added), self.hidden_linear(hidden), hidden)
+        return _SequenceGRUStep.apply(inputs, added, hidden, self.input_linear.token, self.hidden_linear.token, self)
 
 
 class SequenceLinear:
@@ -509,3 +548,44 @@ class _SequenceWeightGradient(th.autograd.Function):
         grad_weight = th.mm(grads.t(), inputs).to(ctx.weight_dtype) if ctx.needs_input_grad[1] else None
         grad_bias = grads.sum(0, dtype=th.float32).to(ctx.weight_dtype) if ctx.has_bias and ctx.needs_input_grad[2] else None
         return None, grad_weight, grad_bias
+
+
+class _SequenceGRUStep(th.autograd.Function):
+    @staticmethod
+    def forward(ctx: Any, inputs: th.Tensor, added: th.Tensor | None, hidden: th.Tensor, input_token: th.Tensor,
+                hidden_token: th.Tensor, cell: SequenceGRUCell) -> th.Tensor:
+        input_linear, hidden_linear = cell.input_linear, cell.hidden_linear
+        cast_inputs, cast_hidden = inputs.to(input_linear.dtype), hidden.to(hidden_linear.dtype)
+        new_hidden, reset_update, new, hidden_n, kept = _gru_gates(
+            _affine(cast_inputs, input_linear.weight, input_linear.bias, added),
+            _affine(cast_hidden, hidden_linear.weight, hidden_linear.bias, None), hidden)
+        ctx.save_for_backward(cast_inputs, cast_hidden, reset_update, new, hidden_n, kept)
+        ctx.cell, ctx.input_dtype, ctx.hidden_dtype = cell, inputs.dtype, hidden.dtype
+        ctx.added_dtype = None if added is None else added.dtype
+        return new_hidden
+
+    @staticmethod
+    def backward(ctx: Any, grad: th.Tensor) -> tuple[th.Tensor | None, ...]:
+        cast_inputs, cast_hidden, reset_update, new, hidden_n, kept = ctx.saved_tensors
+        cell: SequenceGRUCell = ctx.cell
+        input_linear, hidden_linear = cell.input_linear, cell.hidden_linear
+        size = new.shape[-1]
+        reset, update = reset_update[:, :size], reset_update[:, size:]
+        grad = grad.float()
+        # h' = (h - n) z + n;  n = tanh(a_n + r h_n);  [r, z] = sigmoid(a_rz + h_rz)
+        grad_kept = grad * update
+        grad_new = th.ops.aten.tanh_backward(grad - grad_kept, new)
+        grad_reset_update = th.ops.aten.sigmoid_backward(th.cat([grad_new * hidden_n, grad * kept], dim=1), reset_update)
+        grad_input_gates = th.cat([grad_reset_update, grad_new], dim=1).to(input_linear.dtype)  # (B, 3 hidden_size)
+        grad_hidden_gates = th.cat([grad_reset_update, grad_new * reset], dim=1).to(hidden_linear.dtype)
+        input_linear.pairs.append((grad_input_gates, cast_inputs))
+        hidden_linear.pairs.append((grad_hidden_gates, cast_hidden))
+        grad_inputs = th.mm(grad_input_gates, input_linear.weight).to(ctx.input_dtype) if ctx.needs_input_grad[0] else None
+        grad_added = None
+        if ctx.added_dtype is not None and ctx.needs_input_grad[1]:
+            grad_added = grad_input_gates.to(ctx.added_dtype)
+        grad_hidden = None
+        if ctx.needs_input_grad[2]:
+            grad_hidden = grad_kept + th.mm(grad_hidden_gates, hidden_linear.weight).to(ctx.hidden_dtype)
+        zero = th.zeros((), dtype=th.float32, device=grad.device)
+        return grad_inputs, grad_added, grad_hidden, zero, zero, None

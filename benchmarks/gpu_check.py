@@ -113,6 +113,8 @@ def _mark_step(variant: str) -> None:
 
 
 def _relative(reference: th.Tensor, other: th.Tensor) -> float:
+    if reference.numel() == 0:  # a zero-width state field (e.g. the delay-aware inputs of a policy without them)
+        return 0.0
     return float((reference.float() - other.float()).abs().max() / max(1.0, float(reference.float().abs().max())))
 
 

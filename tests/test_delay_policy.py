@@ -159,6 +159,9 @@ def test_evaluation_runs_a_delay_aware_model_under_the_conditions():
     for condition in ("proposed", "no_comm", "hold_last"):
         df = evaluate(model, condition, n_episodes=1, seed=5, n_envs=1)
         assert len(df) == 1 and np.isfinite(df["coverage"]).all()
+    # without delay there is no age to read: a clear error before any episode, not a missing observation key
+    with pytest.raises(ValueError, match="delay-aware.*message_delay=0"):
+        evaluate(model, "proposed", n_episodes=1, seed=5, n_envs=1, config=model.swarm_config.replace(message_delay=0))
 
 
 def test_a_seeded_run_trains_saves_and_resumes_exactly(tmp_path):

@@ -111,7 +111,8 @@ def _model_config(model: Any) -> SwarmConfig | None:
 
 
 def _check_geometry(model: Any, policy: LatentSwarmPolicy | None, config: SwarmConfig) -> None:
-    """Fail early, with both shapes in the message, when the model was built for another grid or sensor."""
+    """Fail early, with both shapes in the message, when the model was built for another grid or sensor, or reads
+    message ages (``delay_aware``) that a config without delay does not give."""
     fw = config.footprint_width
     if policy is not None:
         if tuple(policy.map_shape) != (config.grid_height, config.grid_width) or policy.local_obs_dim != fw * fw:
@@ -119,6 +120,12 @@ def _check_geometry(model: Any, policy: LatentSwarmPolicy | None, config: SwarmC
                 f"The policy was built for a {policy.map_shape[1]}x{policy.map_shape[0]} grid and local_obs of "
                 f"{policy.local_obs_dim} cells, but the evaluation config has a {config.grid_width}x{config.grid_height} "
                 f"grid and sensor_range={config.sensor_range} ({fw * fw} cells); pass the training config"
+            )
+        if getattr(policy, "delay_aware", False) and config.message_delay == 0:
+            raise ValueError(
+                "The policy is delay-aware (delay_aware=True: it reads each message's age, the link_age observation), "
+                "but the evaluation config has message_delay=0, which gives no ages; evaluate it with delayed links, "
+                "message_delay in [1, 1000] (e.g. its training config's, --set message_delay=K on the command line)"
             )
         return
     own = getattr(model, "config", None)

@@ -1,6 +1,6 @@
 """Committed result models still load and evaluate to their published numbers (issue 33's check on a sample).
 
-The models of ``docs/results/coordination_round2_600/`` were rewritten weight-only (Adam's moments removed, every
+The models of ``docs/results/coordination_round2_600/`` (and ``coordination_heavy_dropout/``) are weight-only (Adam's moments removed, every
 other zip entry byte for byte: ``examples/weight_only_models.py``'s ``weight_only_copy``). This test re-evaluates a
 sample of them on the first held-out episodes of their ``table1`` cell, with the trial's own evaluation config, seeds
 and action mode (``trial.json``), and compares the rows with the trial's published ``episodes.csv``. Float columns are
@@ -20,17 +20,21 @@ from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.evaluation import evaluate
 
 ROOT = Path(__file__).resolve().parents[1]
-SWEEP = ROOT / "docs" / "results" / "coordination_round2_600"
-SAMPLE = ["proposed-seed0", "zero_substitute-seed3"]  # the headline learner and a trained substitute
+RESULTS = ROOT / "docs" / "results"
+SAMPLE = [  # (results folder, trial): the headline learner, a trained substitute, a heavy-dropout learner
+    ("coordination_round2_600", "proposed-seed0"),
+    ("coordination_round2_600", "zero_substitute-seed3"),
+    ("coordination_heavy_dropout", "hold_last-seed2"),
+]
 N_EPISODES = 2
 EXACT = ["episode", "seed", "collisions", "episode_length"]
 FLOAT = ["coverage", "episode_return", "link_up_rate", "map_error"]
 FLOAT_RTOL = 1e-5  # as tests/test_evaluation_reference.py
 
 
-@pytest.mark.parametrize("trial_id", SAMPLE)
-def test_a_committed_weight_only_model_evaluates_to_its_published_rows(trial_id):
-    trial_dir = SWEEP / "trials" / trial_id
+@pytest.mark.parametrize("folder, trial_id", SAMPLE)
+def test_a_committed_weight_only_model_evaluates_to_its_published_rows(folder, trial_id):
+    trial_dir = RESULTS / folder / "trials" / trial_id
     record = json.loads((trial_dir / "trial.json").read_text())
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a weight-only file loads without a warning

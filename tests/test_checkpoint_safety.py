@@ -88,6 +88,17 @@ def test_a_second_writer_is_refused_naming_the_folder_and_the_holder_and_a_dead_
     assert not (tmp_path / "run" / LOCK_NAME).exists()  # removed at the end
 
 
+def test_a_run_refused_before_writing_leaves_neither_its_folder_nor_new_parents(tmp_path):
+    (tmp_path / "kept").mkdir()
+    with pytest.raises(ValueError, match="refused"):
+        with output_lock(tmp_path / "kept" / "new" / "deeper" / "run"):
+            raise ValueError("refused")  # e.g. an env that fails its checks after the lock is taken
+    assert (tmp_path / "kept").is_dir() and list((tmp_path / "kept").iterdir()) == []
+    with output_lock(tmp_path / "kept" / "a" / "run") as folder:
+        (folder / "model.zip").write_bytes(b"x")  # a run that wrote something keeps its folders
+    assert (tmp_path / "kept" / "a" / "run" / "model.zip").exists()
+
+
 def test_taking_the_lock_removes_temporaries_of_interrupted_writes_and_nothing_else(tmp_path):
     stale = [tmp_path / ".model.ab12cd34.tmp.zip", tmp_path / "checkpoints" / ".checkpoint_120_steps.x1y2z3w4.tmp.zip",
              tmp_path / ".write-probe.q1w2e3r4", tmp_path / ".progress.mn34op56.tmp.csv"]

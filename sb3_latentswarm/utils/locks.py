@@ -71,8 +71,8 @@ def _acquire(path: Path, folder: Path) -> int:
 
 @contextlib.contextmanager
 def output_lock(folder: str | os.PathLike[str]) -> Iterator[Path]:
-    """Hold the output folder ``folder`` (created if missing, and removed again if it is still empty at the end) for
-    this process; yield it.
+    """Hold the output folder ``folder`` (created if missing, with its missing parents, and those removed again if
+    still empty at the end) for this process; yield it.
 
     :raises OutputInUseError: (a ``ValueError``) when another process holds it, naming the folder and the holder
         (pid, host, start time)
@@ -81,7 +81,7 @@ def output_lock(folder: str | os.PathLike[str]) -> Iterator[Path]:
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise ValueError(f"output folder {folder} is an existing file, not a folder")
-    created = not folder.exists()
+    created = [path for path in (folder, *folder.parents) if not path.exists()]  # the folder and new parents, deepest first
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as error:
@@ -110,6 +110,8 @@ def output_lock(folder: str | os.PathLike[str]) -> Iterator[Path]:
         with contextlib.suppress(OSError):
             path.unlink()  # still holding the lock: a process that opened the old file retries on the new one
         os.close(fd)  # releases the lock
-        if created:  # a run refused before writing anything leaves no empty folder behind
-            with contextlib.suppress(OSError):
-                folder.rmdir()
+        for path in created:  # a run refused before writing anything leaves no empty folder (nor parent) behind
+            try:
+                path.rmdir()
+            except OSError:  # not empty: it holds results, or another run's folder
+                break

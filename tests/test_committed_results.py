@@ -1,11 +1,11 @@
 """Committed result models still load and evaluate to their published numbers (issue 33's check on a sample).
 
-The models of ``docs/results/coordination_round2_600/`` (and ``coordination_heavy_dropout/``) are weight-only (Adam's moments removed, every
-other zip entry byte for byte: ``examples/weight_only_models.py``'s ``weight_only_copy``). This test re-evaluates a
-sample of them on the first held-out episodes of their ``table1`` cell, with the trial's own evaluation config, seeds
-and action mode (``trial.json``), and compares the rows with the trial's published ``episodes.csv``. Float columns are
-compared at the tolerance of ``tests/test_evaluation_reference.py`` (another CPU rounds float32 GEMMs differently in
-the last bit); counts are exact.
+The models of ``docs/results/coordination_round2_600/`` and ``coordination_heavy_dropout/`` are weight-only (Adam's
+moments removed, every other zip entry byte for byte: ``examples/weight_only_models.py``'s ``weight_only_copy``).
+This test re-evaluates a sample of them on the first held-out episodes of their ``table1`` cell, with the trial's own
+evaluation config, seeds and action mode (``trial.json``), and compares the rows with the trial's published
+``episodes.csv``. Float columns are compared at the tolerance of ``tests/test_evaluation_reference.py`` (another CPU
+rounds float32 GEMMs differently in the last bit); counts are exact.
 """
 
 import json

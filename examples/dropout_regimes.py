@@ -33,6 +33,10 @@ Writes into ``--output``:
 - ``run.md``: the command, commit, machine and what is in the folder.
 
     python examples/dropout_regimes.py --episodes 100 --output docs/results/archive/coordination_dropout_regimes
+
+Of ``docs/results/coordination_round2/`` only ``proposed-seed0`` and ``no_comm-seed0`` stay in the tree; bring the
+other models back first with ``git restore --source=1cd9a80 -- docs/results/coordination_round2/trials`` (the working
+tree only; ``docs/results/README.md``, "Model files", says how to undo it).
 """
 
 from __future__ import annotations
@@ -46,6 +50,8 @@ from pathlib import Path
 
 import numpy as np
 
+MODELS_COMMIT = "1cd9a80"
+"""The last commit whose tree holds every model of ``docs/results/coordination_round2/`` (docs/results/README.md)."""
 DEFAULT_MODELS = tuple(f"docs/results/coordination_round2/trials/proposed-seed{seed}/model.zip" for seed in range(5))
 """The second round's committed ``proposed`` learners (training seeds 0-4).
 ``docs/results/archive/coordination_dropout_regimes`` was made with the first round's three squashed models
@@ -366,7 +372,11 @@ def main(argv: list[str] | None = None) -> None:
         regimes = regime_grid(tuple(args.p_fail), tuple(args.mean_outage))
         missing = [m for m in args.models if not Path(m).is_file()]
         if missing:
-            raise ValueError(f"--models: no file at {missing}")
+            raise ValueError(
+                f"--models: no file at {missing} (most committed models left the tree: docs/results/README.md, "
+                f"'Model files', names the commit that has them, e.g. git restore --source={MODELS_COMMIT} -- "
+                "docs/results/coordination_round2/trials)"
+            )
         models = list(dict.fromkeys(args.models))
         learner_of = {m: LEARNERS[LatentSwarmPPO.load(m, device="cpu").policy.message_substitute] for m in models}
         output = Path(args.output)

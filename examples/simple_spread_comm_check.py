@@ -49,6 +49,10 @@ class Args:
     """Episode length."""
     n_envs: int = 8
     """Env copies."""
+    n_epochs: int = 4
+    """PPO epochs per rollout."""
+    learning_rate: float = 3e-4
+    """Adam's learning rate."""
     eval_episodes: int = 32
     """Held-out evaluation episodes per run."""
     output: str = "docs/results/simple_spread_comm_check"
@@ -83,7 +87,7 @@ def train_and_evaluate(args: Args, condition: str, seed: int) -> dict:
     steps = 2 * args.max_cycles
     model = LatentSwarmPPO(
         "LatentSwarmPolicy", env, n_steps=steps, chunk_length=args.max_cycles,
-        batch_size=steps * args.n_envs * args.n_agents // 2, n_epochs=4, learning_rate=3e-4, normalize_value=True,
+        batch_size=steps * args.n_envs * args.n_agents // 2, n_epochs=args.n_epochs, learning_rate=args.learning_rate, normalize_value=True,
         policy_kwargs=dict(latent_dim=32, predictor_hidden=64, decoder_hidden=64, critic_hidden=64, actor_hidden=32,
                            log_std_init=-0.5),
         seed=seed,
@@ -93,6 +97,7 @@ def train_and_evaluate(args: Args, condition: str, seed: int) -> dict:
     model.learn(args.timesteps)
     trained = evaluate_adapted(model, make, n_episodes=args.eval_episodes, seed=10_000)
     return {"condition": condition, "seed": seed, "timesteps": args.timesteps, "cpu_s": time.process_time() - start,
+            "setting": dataclasses.asdict(args) | {"conditions": None, "seeds": None},
             "untrained": untrained, "trained": trained}
 
 

@@ -66,6 +66,22 @@ def test_historical_folders_without_model_files_sit_in_the_archive_and_current_o
         assert name.startswith("archive/") != holds_models, f"{name}: model files {holds_models}"
 
 
+def test_the_model_files_table_says_which_trials_keep_their_model_in_the_tree():
+    # issue 33: a results folder keeps the models docs and tests load; the index names the commit with the others
+    text = (DOCS / "results" / "README.md").read_text()
+    table = text.split("<!-- model-files -->")[1].split("<!-- /model-files -->")[0]
+    listed = {}
+    for name, kept, commit in re.findall(r"^\| `([\w.-]+)/` \| (.*?) \| (.*) \|$", table, re.MULTILINE):
+        listed[name] = set(re.findall(r"`([\w-]+-seed\d+)`", kept))
+        assert re.search(r"`[0-9a-f]{40}`", commit) or "README.md" in commit, (name, commit)
+    for folder in sorted((DOCS / "results").glob("*/trials")):
+        trials = {p.name for p in folder.iterdir() if p.is_dir()}
+        with_model = {name for name in trials if (folder / name / "model.zip").is_file()}
+        if with_model != trials:
+            assert folder.parent.name in listed, f"{folder.parent.name}: trials without model.zip, not in the table"
+            assert listed[folder.parent.name] == with_model, folder.parent.name
+
+
 def test_every_results_plot_has_a_caption():
     page = results_page()
     figures = re.findall(r"```\{figure\} (\S+)\n:alt: \S+\n\n(.+)\n```", page)

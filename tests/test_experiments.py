@@ -396,6 +396,20 @@ def test_stray_or_damaged_trial_folders_are_named(tmp_path, capsys, damage, mess
     assert error.value.code == 2 and message in capsys.readouterr().err
 
 
+def test_a_results_folder_without_its_models_still_reports_but_is_no_warm_start(tmp_path):
+    # issue 33: committed results folders keep their trials' records and leave most model files in the history
+    spec = SweepSpec.create("smoke", 2, variants=["proposed"])
+    (tmp_path / "a").mkdir()
+    _fake_sweep(tmp_path / "a", spec)
+    (tmp_path / "a" / "trials" / "proposed-seed1" / "model.zip").unlink()
+    assert list(finished_trials(tmp_path / "a", spec)) == ["proposed-seed0", "proposed-seed1"]
+    write_report(tmp_path / "a")
+    assert set(pd.read_csv(tmp_path / "a" / "scores.csv")["trial_id"]) == {"proposed-seed0", "proposed-seed1"}
+    budget = SweepSpec.create("smoke", 1).point_preset({}).total_timesteps
+    with pytest.raises(ValueError, match=r"not finished there: \['proposed-seed1'\] \(each needs trial.json, model.zip"):
+        SweepSpec.create("smoke", 2, variants=["proposed"], warm_start=tmp_path / "a", total_timesteps=2 * budget)
+
+
 @pytest.mark.slow  # a trial process trained, killed and resumed: 31 s at load 5 (the trial-level kill test stays fast)
 def test_a_sweep_trial_killed_mid_way_resumes_from_its_checkpoint(tmp_path):
     from sb3_latentswarm.runs.checkpoints import latest_checkpoint, read_checkpoint_state

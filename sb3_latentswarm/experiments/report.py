@@ -34,15 +34,19 @@ METRIC_LABELS = {
 CELL_COLUMNS = ("eval_set", "condition", "p_fail")
 
 
-TRIAL_FILES = ("trial.json", "episodes.csv", "progress.csv", "model.zip")
-"""What a finished trial folder holds."""
+RESULT_FILES = ("trial.json", "episodes.csv", "progress.csv")
+"""The results of a finished trial: what its report reads, and what a finished trial folder must hold."""
+TRIAL_FILES = (*RESULT_FILES, "model.zip")
+"""What a sweep writes into a finished trial folder: its results and the trained model. A committed results folder
+may keep only :data:`RESULT_FILES` (its models left the tree: ``docs/results/README.md``); it still reports and
+resumes, but a ``--warm-start`` from it needs the models back."""
 
 
 def finished_trials(output: str | Path, spec: SweepSpec) -> dict[str, dict[str, Any]]:
     """The finished trials of the sweep in ``output``, ``{trial_id: trial.json record}``, in folder-name order.
 
     Every folder of ``output/trials`` must be a complete trial of ``spec`` (the hidden ``.<trial_id>.partial``
-    folders of an interrupted copy are skipped): one named after a trial of ``spec``, holding :data:`TRIAL_FILES`,
+    folders of an interrupted copy are skipped): one named after a trial of ``spec``, holding :data:`RESULT_FILES`,
     whose ``trial.json`` names the same trial and the evaluation ``spec`` asks for.
 
     :raises ValueError: naming the folder, for a stray folder (not a trial of ``spec``, or a copy of another trial) or
@@ -67,7 +71,7 @@ def finished_trials(output: str | Path, spec: SweepSpec) -> dict[str, dict[str, 
         for name in TRIAL_FILES:
             if (folder / name).is_symlink():
                 check_real_path(folder / name, Path(output), "trial's file")
-        missing = [name for name in TRIAL_FILES if not (folder / name).is_file()]
+        missing = [name for name in RESULT_FILES if not (folder / name).is_file()]
         if missing:
             raise ValueError(
                 f"{folder} is damaged: no {', '.join(missing)}; delete the folder and --resume trains the trial again"

@@ -341,7 +341,12 @@ class SweepSpec:
                     if steps >= preset.total_timesteps:
                         too_long[name] = (steps, preset.total_timesteps)
         if missing:
-            raise ValueError(f"--warm-start {folder}: these trials are not finished there: {missing}")
+            raise ValueError(
+                f"--warm-start {folder}: these trials are not finished there: {missing} (each needs trial.json, "
+                "model.zip and progress.csv; a committed results folder may hold its trials without their models: "
+                "docs/results/README.md names the commit that has them, to bring back with git checkout COMMIT -- "
+                "FOLDER/trials)"
+            )
         if settings_differ:
             first = next(iter(settings_differ.values()))
             fix = " ".join(f"{key}={there}" for key, (there, _) in first.items() if key != "policy_kwargs")

@@ -87,7 +87,8 @@ def train_and_evaluate(args: Args, condition: str, seed: int) -> dict:
     steps = 2 * args.max_cycles
     model = LatentSwarmPPO(
         "LatentSwarmPolicy", env, n_steps=steps, chunk_length=args.max_cycles,
-        batch_size=steps * args.n_envs * args.n_agents // 2, n_epochs=args.n_epochs, learning_rate=args.learning_rate, normalize_value=True,
+        batch_size=steps * args.n_envs * args.n_agents // 2, n_epochs=args.n_epochs, learning_rate=args.learning_rate,
+        normalize_value=True,
         policy_kwargs=dict(latent_dim=32, predictor_hidden=64, decoder_hidden=64, critic_hidden=64, actor_hidden=32,
                            log_std_init=-0.5),
         seed=seed,

@@ -21,7 +21,6 @@ from sb3_latentswarm.links import (
     OutageLinks,
     draw_delays,
     make_link_model,
-    pool_delayed_messages,
 )
 
 N_SE = 5.0  # tolerance in standard errors
@@ -212,18 +211,6 @@ def test_delay_draws_have_the_configured_mean():
     q = 2 / 3
     assert geometric.mean() == pytest.approx(2.0, abs=0.03)
     assert (geometric >= 3).mean() == pytest.approx(q**3, abs=0.005)
-
-
-def test_pooled_message_is_built_from_what_each_sender_sent():
-    # 1 swarm, 3 agents, d = 1; sent_history[a, 0, j] = 10 a + j (what j sent a steps before the on-time message)
-    history = (10.0 * np.arange(3)[:, None, None, None] + np.arange(3)[None, None, :, None]).astype(np.float64)
-    mask = np.array([[[False, True, True], [False, False, False], [True, False, False]]])
-    age = np.array([[[0, 2, 0], [0, 0, 0], [1, 0, 0]]])
-    received, has_message = pool_delayed_messages(history, mask, age)
-    np.testing.assert_allclose(received[0, :, 0], [(21.0 + 2.0) / 2, 0.0, 10.0])
-    assert has_message.tolist() == [[True, False, True]]
-    with pytest.raises(ValueError, match="sent_history holds 3 steps"):
-        pool_delayed_messages(history, mask, age + 3)
 
 
 def test_delay_adds_link_age_to_the_observation_only_when_on():

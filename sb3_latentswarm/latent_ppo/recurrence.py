@@ -151,8 +151,7 @@ def pool_messages(sent_messages: th.Tensor, link_mask: th.Tensor) -> tuple[th.Te
 def pool_delayed_messages(sent_messages: th.Tensor, link_mask: th.Tensor, link_age: th.Tensor,
                           expiry: int) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
     """Sec. III-B under delay (extension): each arrival pooled as it was sent, m_t^i = mean_{j in N_t^i}
-    z_{t-1-a_ij}^j, and its age alpha_t^i = mean_{j in N_t^i} a_ij / E (both zero when nothing arrived); the torch
-    counterpart of :func:`sb3_latentswarm.links.pool_delayed_messages`.
+    z_{t-1-a_ij}^j, and its age alpha_t^i = mean_{j in N_t^i} a_ij / E (both zero when nothing arrived).
 
     :param sent_messages: [s, j, a] = z_{t-1-a}^j, the messages every agent sent, freshest first, (n_swarms, N, E + 1, d)
     :param link_mask: [s, i, j] = 1.0 iff a message of j arrived at i at t, float, (n_swarms, N, N)

@@ -17,7 +17,7 @@ from __future__ import annotations
 from sb3_latentswarm.channel import usable_link_range
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.links.base import ALL, LinkModel, LinkStep, Swarms
-from sb3_latentswarm.links.delay import DELAY_MODELS, DelayedLinks, draw_delays, pool_delayed_messages
+from sb3_latentswarm.links.delay import DELAY_MODELS, DelayedLinks, draw_delays
 from sb3_latentswarm.links.models import A2ALinks, DistanceLinks, FixedLinks, OutageLinks, Outages
 
 __all__ = [
@@ -34,7 +34,6 @@ __all__ = [
     "Swarms",
     "draw_delays",
     "make_link_model",
-    "pool_delayed_messages",
 ]
 
 

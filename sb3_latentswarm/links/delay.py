@@ -11,8 +11,8 @@ the same sender supersedes them. So at every step each directed link delivers at
 
 A message that arrives at ``t`` with age ``a`` carries what ``j`` sent ``a`` steps before the on-time message: the
 pooled message of Sec. III-B under delay is the mean over the arrivals of each sender's ``z`` of the step it was sent
-(:func:`pool_delayed_messages`). Delay draws come after the base model's draws, from the same per-swarm stream; with
-``message_delay = 0`` this module is not used and nothing changes.
+(the policy's :func:`sb3_latentswarm.latent_ppo.recurrence.pool_delayed_messages`). Delay draws come after the base
+model's draws, from the same per-swarm stream; with ``message_delay = 0`` this module is not used and nothing changes.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import numpy as np
 from sb3_latentswarm.config import DELAY_MODELS
 from sb3_latentswarm.links.base import LinkModel, LinkStep, Swarms
 
-__all__ = ["DELAY_MODELS", "DelayedLinks", "draw_delays", "pool_delayed_messages"]
+__all__ = ["DELAY_MODELS", "DelayedLinks", "draw_delays"]
 
 #: Marks an empty slot of the in-flight buffer.
 _EMPTY = -1
@@ -113,30 +113,3 @@ class DelayedLinks(LinkModel):
 
     def _state_arrays(self) -> dict[str, np.ndarray]:
         return {"in_flight": self.in_flight, **{f"base.{k}": v for k, v in self.base._state_arrays().items()}}
-
-
-def pool_delayed_messages(
-    sent_history: np.ndarray, link_mask: np.ndarray, link_age: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """The pooled message under delay (Sec. III-B's mean over live in-links, each message as it was sent).
-
-    ``received[s, i] = mean over j with link_mask[s, i, j] of sent_history[link_age[s, i, j], s, j]`` (zero when
-    nothing arrived). Without delay (all ages 0) this is the mean of the on-time messages ``sent_history[0]``.
-
-    :param sent_history: (A + 1, S, N, d): ``[a]`` = the messages the senders sent ``a`` steps before the on-time
-        one (``[0]`` = z_{t-1}, ``[a]`` = z_{t-1-a}); ``A`` >= the largest age.
-    :param link_mask: (S, N, N) bool, ``[s, i, j]`` = a message of ``j`` arrived at ``i``.
-    :param link_age: (S, N, N) int, its age in steps.
-    :return: ``received`` (S, N, d) and ``has_message`` (S, N) bool.
-    """
-    n_swarms, n = link_mask.shape[:2]
-    age = np.where(link_mask, link_age, 0)
-    if age.size and age.max() >= sent_history.shape[0]:
-        raise ValueError(f"sent_history holds {sent_history.shape[0]} steps, an age of {int(age.max())} needs more")
-    swarm = np.arange(n_swarms)[:, None, None]
-    sender = np.arange(n)[None, None, :]
-    messages = sent_history[age, swarm, sender]  # (S, N receivers, N senders, d): what each arrival carries
-    count = link_mask.sum(axis=-1)  # (S, N)
-    weights = link_mask / np.maximum(count, 1)[..., None]
-    received = np.einsum("sij,sijd->sid", weights, messages)
-    return received, count > 0

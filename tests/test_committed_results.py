@@ -18,6 +18,7 @@ import pytest
 from sb3_latentswarm import LatentSwarmPPO
 from sb3_latentswarm.config import SwarmConfig
 from sb3_latentswarm.evaluation import evaluate
+from sb3_latentswarm.experiments.report import trial_file
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "docs" / "results"
@@ -40,7 +41,7 @@ def test_a_committed_weight_only_model_evaluates_to_its_published_rows(folder, t
         warnings.simplefilter("error")  # a weight-only file loads without a warning
         model = LatentSwarmPPO.load(trial_dir / "model.zip", device="cpu")
     assert not model.policy.optimizer.state  # weight-only: a fresh optimizer, Adam's moments not in the file
-    published = pd.read_csv(trial_dir / "episodes.csv")
+    published = pd.read_csv(trial_file(trial_dir, "episodes.csv"))  # episodes.csv or its gzip form
     condition = "proposed"  # a substitute learner's own substitute is part of its model
     expected = published[(published["eval_set"] == "table1") & (published["condition"] == condition)]
     expected = expected.head(N_EPISODES).reset_index(drop=True)

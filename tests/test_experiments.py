@@ -1,6 +1,7 @@
 """Multi-seed sweeps: the across-seed intervals on data with known answers, bad input, and one smoke sweep on Ray."""
 
 import dataclasses
+import gzip
 import json
 import os
 import re
@@ -402,9 +403,16 @@ def test_a_results_folder_without_its_models_still_reports_but_is_no_warm_start(
     (tmp_path / "a").mkdir()
     _fake_sweep(tmp_path / "a", spec)
     (tmp_path / "a" / "trials" / "proposed-seed1" / "model.zip").unlink()
+    # and keeps a trial's episode table gzipped
+    episodes = tmp_path / "a" / "trials" / "proposed-seed1" / "episodes.csv"
+    expected = pd.read_csv(episodes)
+    episodes.with_name("episodes.csv.gz").write_bytes(gzip.compress(episodes.read_bytes()))
+    episodes.unlink()
     assert list(finished_trials(tmp_path / "a", spec)) == ["proposed-seed0", "proposed-seed1"]
     write_report(tmp_path / "a")
     assert set(pd.read_csv(tmp_path / "a" / "scores.csv")["trial_id"]) == {"proposed-seed0", "proposed-seed1"}
+    rebuilt = pd.read_csv(tmp_path / "a" / "episodes.csv").query("trial_id == 'proposed-seed1'").reset_index(drop=True)
+    pd.testing.assert_frame_equal(rebuilt, expected)
     budget = SweepSpec.create("smoke", 1).point_preset({}).total_timesteps
     with pytest.raises(ValueError, match=r"not finished there: \['proposed-seed1'\] \(each needs trial.json, model.zip"):
         SweepSpec.create("smoke", 2, variants=["proposed"], warm_start=tmp_path / "a", total_timesteps=2 * budget)

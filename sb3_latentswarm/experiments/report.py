@@ -42,6 +42,14 @@ may keep only :data:`RESULT_FILES` (its models left the tree: ``docs/results/REA
 resumes, but a ``--warm-start`` from it needs the models back."""
 
 
+def trial_file(folder: str | Path, name: str) -> Path:
+    """``folder/name``, or ``folder/name.gz`` when only that exists: a committed results folder may keep a trial's
+    tables gzipped (``docs/results/README.md``); pandas reads either."""
+    path = Path(folder) / name
+    gzipped = path.with_name(f"{name}.gz")
+    return gzipped if not path.is_file() and gzipped.is_file() else path
+
+
 def finished_trials(output: str | Path, spec: SweepSpec) -> dict[str, dict[str, Any]]:
     """The finished trials of the sweep in ``output``, ``{trial_id: trial.json record}``, in folder-name order.
 
@@ -71,7 +79,7 @@ def finished_trials(output: str | Path, spec: SweepSpec) -> dict[str, dict[str, 
         for name in TRIAL_FILES:
             if (folder / name).is_symlink():
                 check_real_path(folder / name, Path(output), "trial's file")
-        missing = [name for name in RESULT_FILES if not (folder / name).is_file()]
+        missing = [name for name in RESULT_FILES if not trial_file(folder, name).is_file()]
         if missing:
             raise ValueError(
                 f"{folder} is damaged: no {', '.join(missing)}; delete the folder and --resume trains the trial again"
@@ -85,8 +93,7 @@ def finished_trials(output: str | Path, spec: SweepSpec) -> dict[str, dict[str, 
                 f"{folder} holds trial {record.get('trial_id')!r}, not {folder.name!r} (a copied folder?); "
                 f"move it out of {trials_dir}"
             )
-        with open(folder / "episodes.csv") as handle:
-            header = handle.readline().strip().split(",")
+        header = list(pd.read_csv(trial_file(folder, "episodes.csv"), nrows=0).columns)
         absent = [c for c in (*grid_labels(record.get("grid_point") or {}), *CELL_COLUMNS, "trial_id") if c not in header]
         if absent:
             raise ValueError(
@@ -104,7 +111,12 @@ def finished_trials(output: str | Path, spec: SweepSpec) -> dict[str, dict[str, 
 
 
 def _read_trials(output: Path, ids: list[str], name: str) -> pd.DataFrame:
-    frames = [pd.read_csv(path) for path in (output / "trials" / i / name for i in ids) if path.stat().st_size > 1]
+    frames = []
+    for path in (trial_file(output / "trials" / i, name) for i in ids):
+        try:
+            frames.append(pd.read_csv(path))
+        except pd.errors.EmptyDataError:  # a trial that wrote no row (an empty progress.csv)
+            continue
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 

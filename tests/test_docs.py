@@ -2,6 +2,7 @@
 
 import re
 import runpy
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -80,6 +81,20 @@ def test_the_model_files_table_says_which_trials_keep_their_model_in_the_tree():
         if with_model != trials:
             assert folder.parent.name in listed, f"{folder.parent.name}: trials without model.zip, not in the table"
             assert listed[folder.parent.name] == with_model, folder.parent.name
+
+
+def test_the_checkout_stays_light():
+    # issue 33: the tracked tree is <= 60 MB (models out of the tree, per-episode tables gzipped); the history keeps
+    # the rest, at the commits docs/results/README.md names
+    root = DOCS.parent
+    if not (root / ".git").exists():
+        pytest.skip("not a git checkout (an installed package or an sdist): no tracked tree to weigh")
+    listed = subprocess.run(["git", "ls-files", "-z"], cwd=root, capture_output=True, check=True).stdout
+    sizes = {name: (root / name).stat().st_size for name in listed.decode().split("\0") if (root / name).is_file()}
+    total = sum(sizes.values())
+    biggest = sorted(sizes, key=sizes.get)[-5:]
+    assert total <= 60_000_000, f"tracked files weigh {total:,} bytes (> 60 MB); the biggest: {biggest}"
+    assert not [name for name in sizes if name.endswith("/episodes.csv") and "/trials/" in name], "gzip trial tables"
 
 
 def test_every_results_plot_has_a_caption():

@@ -11,7 +11,10 @@ range (the best condition's mean return minus the untrained policy's). Regenerat
     wait; python examples/simple_spread_comm_check.py --report-only
 
 The longer budget (``longer_budget/``): ``--timesteps 200000 --seeds 3`` (then 4 5) with
-``--output docs/results/simple_spread_comm_check/longer_budget``.
+``--output docs/results/simple_spread_comm_check/longer_budget``. MAPPO's MPE settings at 3M agent-steps
+(``budget_3m/``): ``--timesteps 3000000 --seeds 0 --n-envs 32 --n-epochs 10 --learning-rate 7e-4``; the harder setting
+(``n5_one_landmark/``): the same with ``--n-agents 5 --neighbors 1``. The report describes the setting each folder's
+runs recorded.
 """
 
 from __future__ import annotations
@@ -102,20 +105,37 @@ def train_and_evaluate(args: Args, condition: str, seed: int) -> dict:
             "untrained": untrained, "trained": trained}
 
 
+def _setting(args: Args, runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """The setting the runs were trained in: their recorded ``setting`` (older runs have none: then ``args``)."""
+    recorded = [{k: v for k, v in r["setting"].items() if k not in ("conditions", "seeds", "output", "report_only")}
+                for r in runs if "setting" in r]
+    if recorded and any(other != recorded[0] for other in recorded):
+        raise ValueError(f"{args.output}/per_run holds runs of different settings: {recorded}")
+    return recorded[0] if recorded else dataclasses.asdict(args)
+
+
 def report(args: Args) -> str:
+    """Writes ``results.csv`` and ``run.md`` from ``per_run/*.json`` (the setting as the runs recorded it)."""
+    from sb3_latentswarm.utils.atomic import atomic_path
+
     runs_dir = Path(args.output) / "per_run"
     runs = [json.loads(p.read_text()) for p in sorted(runs_dir.glob("*.json"))]
+    if not runs:
+        raise ValueError(f"{runs_dir} holds no runs: train some first (without --report-only)")
+    setting = _setting(args, runs)
     rows = [{"condition": r["condition"], "seed": r["seed"], "timesteps": r["timesteps"], "cpu_s": round(r["cpu_s"]),
              "return": r["trained"]["return"],
              "landmarks_covered": r["trained"]["sum_landmarks_covered"] / r["trained"]["length"],
+             "final_landmarks_covered": r["trained"].get("final_landmarks_covered", float("nan")),
              "collisions": r["trained"]["sum_collisions"], "untrained_return": r["untrained"]["return"]} for r in runs]
     header = list(rows[0])
     csv = "\n".join([",".join(header)] + [",".join(str(row[k]) for k in header) for row in rows]) + "\n"
-    (Path(args.output) / "results.csv").write_text(csv)
+    with atomic_path(Path(args.output) / "results.csv") as path:
+        path.write_text(csv)
     means = {}
     lines = ["| learner | seeds | return (mean +- sd over seeds) | landmarks covered (mean over steps) "
-             "| collisions per episode |",
-             "|---|---|---|---|---|"]
+             "| landmarks covered at the end | collisions per episode |",
+             "|---|---|---|---|---|---|"]
     for condition in CONDITIONS:
         mine = [row for row in rows if row["condition"] == condition]
         if not mine:
@@ -123,16 +143,19 @@ def report(args: Args) -> str:
         ret = np.array([row["return"] for row in mine])
         means[condition] = ret.mean()
         covered = np.mean([row["landmarks_covered"] for row in mine])
+        final = np.mean([row["final_landmarks_covered"] for row in mine])
         collisions = np.mean([row["collisions"] for row in mine])
-        lines.append(f"| {condition} | {len(mine)} | {ret.mean():.2f} +- {ret.std():.2f} | {covered:.3f} | {collisions:.2f} |")
+        lines.append(f"| {condition} | {len(mine)} | {ret.mean():.2f} +- {ret.std():.2f} | {covered:.3f} | {final:.3f} "
+                     f"| {collisions:.2f} |")
     untrained = float(np.mean([row["untrained_return"] for row in rows]))
-    lines.append(f"| untrained policy | {len(rows)} | {untrained:.2f} | | |")
+    lines.append(f"| untrained policy | {len(rows)} | {untrained:.2f} | | | |")
     text = ["# simple_spread communication check (issue 35, \"show it first\")\n",
-            f"MPE2 `simple_spread_v3`, N = {args.n_agents}, continuous actions, `num_agent_neighbors` = "
-            f"`num_landmark_neighbors` = {args.neighbors}, {args.max_cycles} steps per episode. Each learner: "
-            f"LatentSwarmPPO through `make_adapted_vec_env`, {rows[0]['timesteps']:,} agent-steps, one CPU thread; "
-            f"evaluated on {args.eval_episodes} held-out episodes (seeds 10,000 + k) with sampled actions. Return: the "
-            "mean agent return of an episode.\n", "\n".join(lines) + "\n"]
+            f"MPE2 `simple_spread_v3`, N = {setting['n_agents']}, continuous actions, `num_agent_neighbors` = "
+            f"`num_landmark_neighbors` = {setting['neighbors']}, {setting['max_cycles']} steps per episode. Each "
+            f"learner: LatentSwarmPPO through `make_adapted_vec_env`, {rows[0]['timesteps']:,} agent-steps, "
+            f"{setting['n_envs']} env copies, {setting['n_epochs']} epochs, learning rate {setting['learning_rate']:g}, "
+            f"one CPU thread; evaluated on {setting['eval_episodes']} held-out episodes (seeds 10,000 + k) with "
+            "sampled actions. Return: the mean agent return of an episode.\n", "\n".join(lines) + "\n"]
     if len(means) == 2:
         best = max(means.values())
         span = best - untrained
@@ -148,7 +171,8 @@ def report(args: Args) -> str:
     if notes.exists():
         text.append(notes.read_text())
     body = "\n".join(text)
-    (Path(args.output) / "run.md").write_text(body)
+    with atomic_path(Path(args.output) / "run.md") as path:
+        path.write_text(body)
     return body
 
 

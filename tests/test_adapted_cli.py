@@ -12,7 +12,14 @@ import pytest
 from sb3_latentswarm.cli import main
 from sb3_latentswarm.envs.adapted_env import REGISTERED_ENVS, AdaptedEnv, parse_env_kwargs
 from sb3_latentswarm.evaluation import CONDITIONS, EXTRA_CONDITIONS
-from sb3_latentswarm.evaluation.adapted import ADAPTED_COLUMNS, evaluate_adapted_conditions, summarize_adapted
+from sb3_latentswarm.evaluation.adapted import (
+    ADAPTED_COLUMNS,
+    adapted_episodes,
+    evaluate_adapted_conditions,
+    summarize_adapted,
+)
+from sb3_latentswarm.evaluation.conditions import condition_config
+from sb3_latentswarm.evaluation.diagnostics import DIAGNOSTIC_COLUMNS
 from sb3_latentswarm.presets import get_preset
 
 pytest.importorskip("mpe2.simple_spread_v3", reason="the mpe extra is not installed")
@@ -138,6 +145,27 @@ def test_every_condition_runs_on_the_adapted_env_with_its_own_metrics(zero_learn
     assert list(summary.columns[:3]) == ["condition", "episodes", "return"] and "seed" not in summary.columns
     with pytest.raises(ValueError, match="allowed conditions"):
         evaluate_adapted_conditions(model, SPREAD, preset.config, ("nope",))
+
+
+def test_adapted_conditions_report_the_message_diagnostics_without_changing_the_episodes(zero_learner):
+    preset, model = zero_learner
+    conditions = ("proposed", "full_comm", "no_comm", "no_predictor")
+    table = evaluate_adapted_conditions(model, SPREAD, preset.config, conditions, n_episodes=3, seed=1_000_000)
+    by = table.set_index("condition")
+    assert {"map_error", "pred_error_dropout", *DIAGNOSTIC_COLUMNS} <= set(table.columns)
+    assert (table["map_error"] >= 0).all() and np.isfinite(table["map_error"]).all()
+    # every link up: never in dropout, so no substitute error; every link down: always in dropout, one run per agent
+    assert (by.loc["full_comm", "dropout_share"] == 0).all() and by.loc["full_comm", "pred_error_dropout"].isna().all()
+    assert (by.loc["no_comm", "dropout_share"] == 1).all() and (by.loc["no_comm", "dropout_run_mean"] == 25).all()
+    assert (by.loc["no_comm", "pred_error_dropout"] >= 0).all()
+    assert by.loc["proposed", "dropout_share"].between(0, 1).all()
+    # zeros in place of the message (no_predictor on a zero-substitute learner): the error is the sent message's size
+    assert (by.loc["no_predictor", "pred_error_dropout"].dropna() > 0).all()
+    # the diagnostics step beside predict and draw nothing: the episodes are what predict alone plays
+    cell = condition_config(preset.config, "proposed", preset.config.p_fail)
+    alone = adapted_episodes(model, lambda copies, first: SPREAD.make_vec_env(copies, cell, first, monitor=False), 3,
+                             seed=1_000_000, n_envs=3)
+    np.testing.assert_array_equal(by.loc["proposed", "return"].to_numpy(), [episode["return"] for episode in alone])
 
 
 # ---------------------------------------------------------------------------------------------- the CLI

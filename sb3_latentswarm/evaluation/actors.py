@@ -1,7 +1,8 @@
 """Actors of the evaluation runner: a latent-swarm policy (with its diagnostics) or any SB3-style recurrent model.
 
 Execution is decentralized: every UAV acts from its own ``local_obs``, ``proprio`` and the messages that reached it
-(``link_row``); the global map is read only for the ``map_error`` diagnostic.
+(``link_row``); the referent D_eta reconstructs (the swarm env's ``global_map``, an adapted env's global state or
+``referent``) is read only for the ``map_error`` diagnostic.
 """
 
 from __future__ import annotations
@@ -37,7 +38,9 @@ class LatentActor:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Actions of every slot, and its map error and substitute error (NaN where it had a message).
 
-        :param obs: ``local_obs``, ``proprio``, ``link_row`` of shape (n_slots, ...) and ``global_map`` (n_swarms, H, W)
+        :param obs: the policy's actor keys (``local_obs``, ``proprio``, ``link_row``, ...) of shape (n_slots, ...) and
+            its referent (``policy.layout.referent_key``: ``global_map`` (n_swarms, H, W) on the swarm env) per swarm,
+            (n_swarms, ...)
         :param episode_starts: (n_slots,) 1.0 at the first step of an episode
         :param noise: (n_slots, action_dim) standard normal draws for sampled actions, or ``None`` for mean actions
         :return: actions (n_slots, 4) clipped to [-1, 1], map error (n_slots,), substitute error (n_slots,), float64
@@ -54,7 +57,8 @@ class LatentActor:
 
             # map_error: per-cell squared error of D(mu_t^i) against M_hat_t (the target of Eq. (3))
             decoded = policy.decode_map(step.state.map_state).view(-1, n, policy.n_cells)  # (n_swarms, N, H*W)
-            target = th.as_tensor(obs["global_map"], device=device).float().flatten(1).unsqueeze(1)  # (n_swarms, 1, H*W)
+            referent = obs[policy.layout.referent_key]
+            target = th.as_tensor(referent, device=device).float().flatten(1).unsqueeze(1)  # (n_swarms, 1, H*W)
             map_error = ((decoded - target) ** 2).mean(-1).view(-1)
 
             # substitute error: mbar_t (the message used in place of the received one at a dropout step) against the

@@ -8,13 +8,15 @@ an :class:`~sb3_latentswarm.envs.adapted_env.AdaptedEnv` the way :func:`~sb3_lat
 runs them on the swarm env: each condition sets the link mode of the evaluation env (``full_comm``: every link up,
 ``no_comm``: every link down, the others: the config's link model at ``p_fail``) and the policy's switches
 (``no_predictor``: zeros in place of the predicted message, ``hold_last``, ``no_memory``, ...), with the same episode
-seeds in every condition.
+seeds in every condition. Its rows carry the message diagnostics the swarm env's rows carry (the map error against
+the env's referent, the substitute error and the dropout statistics of
+:mod:`~sb3_latentswarm.evaluation.diagnostics`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import pandas as pd
@@ -22,18 +24,30 @@ import torch as th
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.evaluation.actors import LatentActor
 from sb3_latentswarm.evaluation.conditions import CONDITIONS, check_condition, condition_config, policy_switches
+from sb3_latentswarm.evaluation.diagnostics import DEPTH_COLUMNS, EpisodeDiagnostics
 from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
 from sb3_latentswarm.utils.checks import check_bool, check_int
 
 if TYPE_CHECKING:
     from sb3_latentswarm.envs.adapted_env import AdaptedEnv
 
-__all__ = ["ADAPTED_COLUMNS", "adapted_episodes", "evaluate_adapted", "evaluate_adapted_conditions", "summarize_adapted"]
+__all__ = [
+    "ADAPTED_COLUMNS",
+    "SUMMARY_SKIPS",
+    "adapted_episodes",
+    "evaluate_adapted",
+    "evaluate_adapted_conditions",
+    "summarize_adapted",
+]
 
 ADAPTED_COLUMNS = ("episode", "seed", "condition", "p_fail", "return", "length")
 """The first columns of :func:`evaluate_adapted_conditions`' rows; the env's ``final_<name>`` / ``sum_<name>`` metrics
-follow."""
+follow, then the message diagnostics of the swarm env's rows (``map_error``: D_eta's squared error against the
+referent; ``pred_error_dropout``; :data:`~sb3_latentswarm.evaluation.DIAGNOSTIC_COLUMNS`)."""
+SUMMARY_SKIPS = ("dropout_run_mean", *DEPTH_COLUMNS)
+"""Per-episode columns :func:`summarize_adapted` leaves out of its table (they stay in the per-episode rows)."""
 
 
 def adapted_episodes(
@@ -145,35 +159,55 @@ def evaluate_adapted_conditions(
 
 
 def _first_episodes(model: Any, env: VecEnv, deterministic: bool, seed: int) -> list[dict[str, float]]:
-    """The ``episode_metrics`` of the first episode of every copy of ``env``, in copy order (the copies that finish
-    early run on until the last one has finished; their later episodes are not kept)."""
+    """The ``episode_metrics`` of the first episode of every copy of ``env``, in copy order, each with the message
+    diagnostics of :mod:`~sb3_latentswarm.evaluation.diagnostics` (``map_error``, ``pred_error_dropout``,
+    ``dropout_share``, ...: the swarm env's columns). The copies that finish early run on until the last one has
+    finished; their later episodes are not kept.
+
+    The actions come from ``model.predict``; the diagnostics from a :class:`~sb3_latentswarm.evaluation.actors.
+    LatentActor` stepped beside it on the same observations with mean actions. Its latent state is the policy's (the
+    latent updates read observations and links, never the sampled action), and it draws no random numbers, so the
+    episodes and the sampled actions are what ``predict`` alone gives.
+    """
     n_agents = int(env.get_attr("n_agents", indices=0)[0])
     n_copies = env.num_envs // n_agents
     episodes: list[dict[str, float] | None] = [None] * n_copies
+    policy = model.policy
+    shadow = LatentActor(policy, env.num_envs, n_agents)
+    diagnostics = EpisodeDiagnostics(n_copies, env.num_envs)
+    episode_of_slot = np.repeat(np.arange(n_copies), n_agents)  # copy c plays episode c until its first one ends
     with th.random.fork_rng():
         th.manual_seed(seed)
-        obs = env.reset()
+        obs = cast(dict[str, np.ndarray], env.reset())  # an adapted env's observations are a Dict
         state = None
         starts = np.ones(env.num_envs, dtype=bool)
         while any(episode is None for episode in episodes):
+            referent = obs[policy.layout.referent_key][::n_agents]  # the same in every slot of a copy: one per copy
+            actor_obs = {key: obs[key] for key in policy.layout.actor_keys} | {policy.layout.referent_key: referent}
+            _, map_error, pred_error = shadow.act(actor_obs, starts.astype(np.float32), None)
+            dropout = obs["link_row"].sum(-1) == 0
+            diagnostics.record(episode_of_slot, starts, dropout, map_error, pred_error)
             actions, state = model.predict(obs, state=state, episode_start=starts, deterministic=deterministic)
-            obs, _, starts, infos = env.step(actions)
+            step_obs, _, starts, infos = env.step(actions)
+            obs = cast(dict[str, np.ndarray], step_obs)
             for copy in np.flatnonzero(starts[::n_agents]):
                 if episodes[copy] is None:
-                    episodes[copy] = dict(infos[copy * n_agents]["episode_metrics"])
+                    episodes[copy] = dict(infos[copy * n_agents]["episode_metrics"]) | diagnostics.row(int(copy))
+                    episode_of_slot[copy * n_agents : (copy + 1) * n_agents] = -1
     env.close()
     return [episode for episode in episodes if episode is not None]
 
 
 def summarize_adapted(df: pd.DataFrame, by: str = "condition", decimals: int = 3) -> pd.DataFrame:
     """Per group, the mean and the standard deviation (across episodes, ``ddof=1``) of every metric column of
-    :func:`evaluate_adapted_conditions`; one row per group in the order of first appearance.
+    :func:`evaluate_adapted_conditions` but :data:`SUMMARY_SKIPS`; one row per group in the order of first appearance
+    (a diagnostic with no value in a group, e.g. ``pred_error_dropout`` with every link up, reads ``nan``).
 
     :raise ValueError: ``by`` is not a column
     """
     if by not in df.columns:
         raise ValueError(f"summarize_adapted: no column {by!r}; the DataFrame has {list(df.columns)}")
-    labels = ("episode", "seed", "condition", "p_fail", "eval_set", by)
+    labels = ("episode", "seed", "condition", "p_fail", "eval_set", by, *SUMMARY_SKIPS)
     metrics = [c for c in df.columns if c not in labels]
     rows = []
     for group, runs in df.groupby(by, sort=False):

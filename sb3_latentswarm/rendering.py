@@ -255,6 +255,35 @@ def _with_legend(frame: np.ndarray, panel: np.ndarray) -> np.ndarray:
     return np.concatenate([np.concatenate([frame, pad[0]]), np.concatenate([panel, pad[1]])], axis=1)
 
 
+class _Animation:
+    """Frames into a GIF (kept as 1-byte palette images and written at :meth:`close`) or an MP4 (written as they
+    come, padded to even sizes for H.264 in yuv420p); each frame lasts 1 / ``fps`` seconds."""
+
+    def __init__(self, output: Path, fps: int) -> None:
+        import imageio.v2 as imageio
+
+        self.output, self.fps = output, fps
+        self.gif = output.suffix.lower() == ".gif"
+        self.palette_frames: list[Any] = []
+        self.writer = None if self.gif else imageio.get_writer(output, fps=fps, macro_block_size=1)
+
+    def add(self, frame: np.ndarray) -> None:
+        from PIL import Image
+
+        if self.writer is None:
+            self.palette_frames.append(Image.fromarray(frame).convert("P", palette=Image.Palette.ADAPTIVE))
+        else:
+            self.writer.append_data(np.pad(frame, ((0, frame.shape[0] % 2), (0, frame.shape[1] % 2), (0, 0)), mode="edge"))
+
+    def close(self, write: bool = True) -> None:
+        """Finish the file (a GIF is written only now; ``write=False`` after a failure: no GIF)."""
+        if self.writer is not None:
+            self.writer.close()
+        elif write and self.palette_frames:  # pillow reads duration in milliseconds per frame
+            first, *rest = self.palette_frames
+            first.save(self.output, save_all=True, append_images=rest, duration=1000.0 / self.fps, loop=0)
+
+
 def render_episode(
     model,
     config: SwarmConfig,
@@ -281,18 +310,15 @@ def render_episode(
         and collisions so far) on the right of each frame
     :raise ValueError: for a bad argument, or a model trained on another map or sensor range, before any work
     """
-    import imageio.v2 as imageio
-    from PIL import Image
-
     output = Path(output)
     _check_animation_args(output, fps, max_frames)
     check_model_fits(model, config)
     stride = max(1, -(-config.max_steps // (max_frames - 1)))  # multiples of stride plus the last step: <= max_frames
     output.parent.mkdir(parents=True, exist_ok=True)
-    gif = output.suffix.lower() == ".gif"
-    positions, dropouts, palette_frames = [], [], []
+    positions, dropouts = [], []
     panel = None
-    writer = None if gif else imageio.get_writer(output, fps=fps, macro_block_size=1)
+    animation = _Animation(output, fps)
+    written = False
     try:
         for t, frame, position, dropout, infos, _ in _episode(
             model, config, seed, condition, deterministic, lambda t: t % stride == 0
@@ -312,18 +338,99 @@ def render_episode(
                 status = (f"step {t:>4} / {config.max_steps}\ncoverage {100 * info.get('coverage', 0.0):5.1f} %\n"
                           f"collisions {info.get('collisions', 0):>3}")
                 frame = _with_legend(frame, panel.image(status))
-            if writer is None:  # a GIF is written at the end: keep each frame as the 1-byte palette image it becomes
-                palette_frames.append(Image.fromarray(frame).convert("P", palette=Image.Palette.ADAPTIVE))
-            else:  # H.264 in yuv420p needs even frame sizes: pad one row/column of the border colour where needed
-                writer.append_data(np.pad(frame, ((0, frame.shape[0] % 2), (0, frame.shape[1] % 2), (0, 0)), mode="edge"))
+            animation.add(frame)
+        written = True
     finally:
-        if writer is not None:
-            writer.close()
-    if gif:  # pillow reads duration in milliseconds per frame (imageio passes it on unchanged)
-        first, *rest = palette_frames
-        first.save(output, save_all=True, append_images=rest, duration=1000.0 / fps, loop=0)
+        animation.close(write=written)
     plot_trajectories(np.stack(positions), np.array(dropouts), config, output.with_name(output.stem + "_trajectories.png"))
     return output
+
+
+def render_adapted_episode(
+    model,
+    env: Any,
+    config: SwarmConfig,
+    output: str | Path,
+    seed: int = 0,
+    condition: str = "proposed",
+    fps: int = 10,
+    max_frames: int = 400,
+    deterministic: bool = True,
+) -> Path:
+    """Write an animated GIF or MP4 of one episode of an adapted env (``render --env``) to ``output``: the env's own
+    frames (``render_mode="rgb_array"``, passed to its factory with ``env.kwargs``) with a caption under each one
+    (condition, episode seed, way of acting, step, the mean agent return so far, and how many agents received no
+    message at that step, i.e. acted in dropout, Sec. III-C).
+
+    One env copy reset with ``seed``, the link model of ``condition`` at ``config.p_fail`` and the policy's switches of
+    ``condition``; sampled actions draw from a torch generator seeded with ``seed`` (random actions from the action
+    space seeded with it), so the same call gives the same GIF. With mean actions the episode is the one
+    ``evaluate --env --deterministic`` plays as its episode 0 when ``seed`` is its evaluation seed. Every step is a
+    frame, up to ``max_frames``; there is no trajectory figure (an adapted env has no map to draw it on).
+
+    :param model: a :class:`~sb3_latentswarm.LatentSwarmPPO` trained on this env, or ``None`` for random actions
+    :param env: the :class:`~sb3_latentswarm.envs.adapted_env.AdaptedEnv`
+    :param config: its link fields (:meth:`Preset.with_env <sb3_latentswarm.presets.Preset.with_env>`)
+    :raise ValueError: a bad argument or condition, or an env factory that takes no ``render_mode`` or returns no
+        frame, before anything is written
+    """
+    from sb3_latentswarm.envs.adapted_env import AdaptedEnv
+    from sb3_latentswarm.evaluation.conditions import check_condition, condition_config, policy_switches
+
+    output = Path(output)
+    _check_animation_args(output, fps, max_frames)
+    condition = check_condition(condition).name
+    framed = AdaptedEnv(env.name, {**env.kwargs, "render_mode": "rgb_array"})
+    try:
+        vec = framed.make_vec_env(1, condition_config(config, condition, config.p_fail), seed, monitor=False)
+    except TypeError as error:
+        raise ValueError(
+            f"render --env {env.name}: the env factory must accept render_mode='rgb_array' (PettingZoo's convention) "
+            f"to give frames: {error}"
+        ) from error
+    obs = vec.reset()
+    first = vec.get_images()[0]
+    if not isinstance(first, np.ndarray) or first.ndim != 3:
+        vec.close()
+        raise ValueError(f"render --env {env.name}: env.render() with render_mode='rgb_array' gave no RGB frame")
+    n_agents = vec.num_envs
+    vec.action_space.seed(seed)
+    actor = "random actions" if model is None else ("mean actions" if deterministic else "sampled actions")
+    switches = contextlib.nullcontext() if model is None else policy_switches(model.policy, condition)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    animation = _Animation(output, fps)
+    written = False
+    try:
+        with switches, th.random.fork_rng():
+            th.manual_seed(seed)
+            state, starts = None, np.ones(n_agents, dtype=bool)
+            episode_return, t, done = 0.0, 0, False
+            while not done and t < max_frames:
+                dropout = int((obs["link_row"].sum(-1) == 0).sum())
+                caption = (f"{condition}, episode seed {seed}, {actor}\nstep {t:>3}   return {episode_return:7.2f}   "
+                           f"in dropout {dropout} / {n_agents}")
+                animation.add(_with_caption(vec.get_images()[0], caption))
+                if model is None:
+                    actions = np.stack([vec.action_space.sample() for _ in range(n_agents)])
+                else:
+                    actions, state = model.predict(obs, state=state, episode_start=starts, deterministic=deterministic)
+                obs, rewards, starts, _ = vec.step(actions)
+                episode_return += float(np.mean(rewards))
+                t, done = t + 1, bool(starts[0])
+        written = True
+    finally:
+        animation.close(write=written)
+        vec.close()
+    return output
+
+
+def _with_caption(frame: np.ndarray, caption: str, height: int = 36) -> np.ndarray:
+    """``frame`` (H, W, 3) uint8 with ``caption`` (two lines) in black on a white band under it."""
+    from PIL import Image, ImageDraw
+
+    band = Image.new("RGB", (frame.shape[1], height), "white")
+    ImageDraw.Draw(band).multiline_text((4, 2), caption, fill=(0, 0, 0))
+    return np.concatenate([np.asarray(frame[..., :3], dtype=np.uint8), np.asarray(band)], axis=0)
 
 
 def _check_animation_args(output: Path, fps: int, max_frames: int) -> None:

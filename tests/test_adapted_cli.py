@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -194,6 +195,33 @@ def test_cli_train_evaluate_on_simple_spread_writes_a_model_and_the_env_metrics(
     assert main(argv) == 0
     config = json.loads((tmp_path / "bernoulli" / "evaluation.json").read_text())["config"]
     assert (config["link_model"], config["outage_model"], config["p_fail"]) == ("outage", "bernoulli", 0.2)
+
+
+def test_render_draws_an_adapted_episode_in_the_envs_own_frames(zero_learner, tmp_path, monkeypatch):
+    from PIL import Image
+
+    from sb3_latentswarm.rendering import render_adapted_episode
+
+    preset, model = zero_learner
+    paths = [render_adapted_episode(model, SPREAD, preset.config, tmp_path / f"{k}.gif", seed=3, deterministic=False)
+             for k in range(2)]
+    assert paths[0].read_bytes() == paths[1].read_bytes()  # seeded: the same call gives the same file
+    with Image.open(paths[0]) as gif:
+        assert gif.n_frames == 25  # one frame per step of the 25-step episode
+    # the command line: random actions without --model; --env with a model of the swarm env is refused
+    assert main(["render", *spread_args(), "--output", str(tmp_path / "random.gif"), "--seed", "1"]) == 0
+    assert (tmp_path / "random.gif").stat().st_size > 0
+    swarm_model = Path(__file__).parent / "data" / "models" / "coordination-proposed-seed0.zip"
+    with pytest.raises(SystemExit):
+        main(["render", "--model", str(swarm_model), *spread_args(), "--output", str(tmp_path / "swarm.gif")])
+    assert not (tmp_path / "swarm.gif").exists()
+    # an env factory without render_mode gives no frames: a clear error, nothing written
+    (tmp_path / "line_env.py").write_text(RENDEZVOUS_MODULE)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(ValueError, match="must accept render_mode='rgb_array'"):
+        render_adapted_episode(None, AdaptedEnv("line_env:make_line", {"n_agents": 2}), preset.config,
+                               tmp_path / "line.gif")
+    assert not (tmp_path / "line.gif").exists()
 
 
 def test_cli_trains_a_substitute_learner_and_resumes_an_entry_point_only_when_named(tmp_path, monkeypatch, capsys):

@@ -40,14 +40,7 @@ def command_evaluate(args: argparse.Namespace) -> int:
     on the env config saved with it unless ``--preset`` / ``--set`` say otherwise; tables into
     :func:`_evaluation_folder`."""
     model = load_model(args)
-    adapted_model = "global_map" not in getattr(model.observation_space, "spaces", {})
-    if adapted_model and args.adapted_env is None:
-        raise ValueError(
-            f"--model {args.model} was trained on an adapted env (its observations have no global_map); the model file "
-            "does not name the env (a file never names code to import): pass --env NAME --env-kwargs JSON as in train"
-        )
-    if not adapted_model and args.adapted_env is not None:
-        raise ValueError(f"--env {args.env}: --model {args.model} was trained on the swarm env; evaluate it without --env")
+    check_model_env(args, model)
     preset = preset_from_args(args, model)
     if args.episodes:
         preset = dataclasses.replace(preset, eval_episodes=args.episodes)
@@ -58,6 +51,21 @@ def command_evaluate(args: argparse.Namespace) -> int:
         probe_writable(output, room_bytes=1 << 20)
         evaluate_and_print(model, preset, args, output, p_fail_sweep=args.p_fail_sweep, baselines=not args.no_baselines)
     return 0
+
+
+def check_model_env(args: argparse.Namespace, model: LatentSwarmPPO) -> None:
+    """Refuse ``--env`` with a model of the swarm env, and a model of an adapted env without ``--env``.
+
+    :raise ValueError: naming ``--model`` and ``--env`` and what to pass
+    """
+    adapted_model = "global_map" not in getattr(model.observation_space, "spaces", {})
+    if adapted_model and args.adapted_env is None:
+        raise ValueError(
+            f"--model {args.model} was trained on an adapted env (its observations have no global_map); the model file "
+            "does not name the env (a file never names code to import): pass --env NAME --env-kwargs JSON as in train"
+        )
+    if not adapted_model and args.adapted_env is not None:
+        raise ValueError(f"--env {args.env}: --model {args.model} was trained on the swarm env; use it without --env")
 
 
 def load_model(args: argparse.Namespace) -> LatentSwarmPPO:

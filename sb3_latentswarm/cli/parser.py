@@ -243,6 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--condition", default="proposed", help=f"test-time communication condition: {conditions}")
     render.add_argument("--output", default="episode.gif", help="file ending in .gif or .mp4 (needs imageio-ffmpeg)")
     render.add_argument("--fps", type=int_at_least(1), default=10, help="frames per second of the animation (default 10)")
+    add_env(render, "render (the env's own frames, render_mode='rgb_array'; a model trained with train --env)")
 
     sweep = sub.add_parser("sweep", help="train seeds x variants (x a grid) on Ray Tune; across-seed intervals (extra sweep)")
     sweep.add_argument("--preset", required=True, choices=sorted(PRESETS), help="env, algorithm settings and budget")

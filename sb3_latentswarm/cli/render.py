@@ -5,17 +5,34 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from sb3_latentswarm.cli.evaluate import load_model
+from sb3_latentswarm.cli.evaluate import check_model_env, load_model
 from sb3_latentswarm.cli.settings import preset_from_args
 from sb3_latentswarm.utils.locks import output_lock
 
 
 def command_render(args: argparse.Namespace) -> int:
-    """``render``: one episode of ``--model`` (or random actions) under ``--condition``, to ``--output``."""
-    from sb3_latentswarm.rendering import check_model_fits, render_episode
+    """``render``: one episode of ``--model`` (or random actions) under ``--condition``, to ``--output``; with
+    ``--env``, an episode of that adapted env in its own frames."""
+    from sb3_latentswarm.rendering import check_model_fits, render_adapted_episode, render_episode
 
     model = load_model(args) if args.model else None
+    if model is not None:
+        check_model_env(args, model)
     preset = preset_from_args(args, model)
+    if preset.env is not None:
+        with output_lock(Path(args.output).parent):
+            path = render_adapted_episode(
+                model,
+                preset.env,
+                preset.config,
+                args.output,
+                seed=args.seed,
+                condition=args.condition,
+                fps=args.fps,
+                deterministic=not args.stochastic,
+            )
+        print(f"Wrote {path}")
+        return 0
     check_model_fits(model, preset.config)
     with output_lock(Path(args.output).parent):  # the folder the animation is written into
         path = render_episode(

@@ -38,6 +38,9 @@ if TYPE_CHECKING:
 
 ROOT = Path(__file__).resolve().parent.parent
 COORDINATION = ROOT / "docs" / "results" / "coordination_round2"
+TABLE_LEGEND = ("\n(mean ± standard deviation across the episodes; steps to 90 %: over the episodes that reached 90 % "
+                "coverage, (k/n) of them; the reading below compares rows in standard errors, sd / sqrt(n))")
+"""Printed under each table: what ``±`` and ``(k/n)`` mean."""
 
 
 def option(default, help: str):  # noqa: A002 - argparse's name
@@ -171,6 +174,7 @@ def main() -> None:
     seeds = f"episode seeds {EVAL_SEED_BASE:,}..{EVAL_SEED_BASE + args.episodes - 1:,}"
     print(f"\n### Demo task: the model just trained, {args.episodes} held-out episodes per row ({seeds}), sampled actions\n")
     print(to_markdown(summarize(demo, by="condition")))
+    print(TABLE_LEGEND)
 
     # ---- 2. the committed coordination model under the paper's conditions
     print(f"\n[2/2] Evaluating the committed coordination model: {Path(args.model).relative_to(ROOT)}")
@@ -190,6 +194,7 @@ def main() -> None:
         f"episodes per row ({seeds}), sampled actions\n"
     )
     print(to_markdown(summarize(table, by="condition")))
+    print(TABLE_LEGEND)
 
     # ---- the reading, from the two tables (paired by episode seed: every row ran the same episodes)
     demo_gap = paired_gap(demo, "no_comm", "proposed")

@@ -97,6 +97,22 @@ def test_the_checkout_stays_light():
     assert not [name for name in sizes if name.endswith("/episodes.csv") and "/trials/" in name], "gzip trial tables"
 
 
+def test_every_condition_and_link_model_has_its_row_in_the_tables_that_describe_them():
+    # issue 33's new-contributor trial: a condition or link model added in code must reach the tables people read
+    from sb3_latentswarm.config import LINK_MODELS
+    from sb3_latentswarm.evaluation import CONDITION_TABLE, conditions
+    from sb3_latentswarm.links import __doc__ as links_doc
+
+    evaluation_page = (DOCS / "evaluation.md").read_text()
+    for name in CONDITION_TABLE:
+        assert f"``{name}``" in conditions.__doc__, f"{name}: no row in evaluation/conditions.py's docstring table"
+        assert f"| `{name}`" in evaluation_page, f"{name}: no row in docs/evaluation.md's conditions table"
+    concepts = (DOCS / "concepts.md").read_text()
+    for name in LINK_MODELS:
+        assert f'link_model="{name}"' in links_doc, f"{name}: not in links/__init__.py's docstring"
+        assert f'`link_model="{name}"`' in concepts or f'`"{name}"`' in concepts, f"{name}: not in docs/concepts.md"
+
+
 def test_every_results_plot_has_a_caption():
     page = results_page()
     figures = re.findall(r"```\{figure\} (\S+)\n:alt: \S+\n\n(.+)\n```", page)

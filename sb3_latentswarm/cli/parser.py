@@ -239,7 +239,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_common(render, None)
     render.add_argument("--model", default=None, help="saved model (default: random actions)")
     add_trust_pickle(render)
-    conditions = "proposed (default), full_comm, no_comm, no_predictor, no_memory, ...: sb3_latentswarm.evaluation.CONDITIONS"
+    conditions = ("proposed (default), full_comm, no_comm, no_predictor, no_memory, hold_last, ...: "
+                  "sb3_latentswarm.evaluation.CONDITION_TABLE")
     render.add_argument("--condition", default="proposed", help=f"test-time communication condition: {conditions}")
     render.add_argument("--output", default="episode.gif", help="file ending in .gif or .mp4 (needs imageio-ffmpeg)")
     render.add_argument("--fps", type=int_at_least(1), default=10, help="frames per second of the animation (default 10)")

@@ -63,8 +63,8 @@ class Condition:
     label: str
     """Its row label in Table I."""
     link_mode: str
-    """``SwarmConfig.link_mode`` of the evaluation env: ``"channel"`` (Eq. (1) with p_f), ``"full"``, ``"none"`` or
-    ``"full_in_range"``."""
+    """``SwarmConfig.link_mode`` of the evaluation env: ``"channel"`` (the config's link model at p_f: the A2A channel of
+    Eq. (1) by default, or the outage or distance model), ``"full"``, ``"none"`` or ``"full_in_range"``."""
     message_substitute: str | None = None
     """``LatentSwarmPolicy.message_substitute`` under the condition (what replaces m_t during dropout), or ``None``:
     the policy's own."""

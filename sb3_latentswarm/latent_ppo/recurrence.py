@@ -211,8 +211,10 @@ def agent_update(policy: LatentSwarmPolicy, inputs: AgentInputs, state: LatentSt
         substitute = th.zeros_like(predicted_message)
     elif policy.message_substitute == "hold_last":
         substitute = held_prev
-    else:  # own_message
+    elif policy.message_substitute == "own_message":
         substitute = sent_message
+    else:  # a value of MESSAGE_SUBSTITUTES this update does not know yet: never a silent default
+        raise ValueError(f"agent_update: no rule for message_substitute={policy.message_substitute!r}")
     best_message = th.where(received_now, received_message, substitute)
 
     # Sec. III-A, asymmetric update: mu_t = E_phi(mu_{t-1}, o_t, p_t, m^mu_t), m^mu_t = 0 when nothing arrived

@@ -548,6 +548,22 @@ def test_a_warm_start_compares_the_settings_the_earlier_trials_trained_with_not_
     assert spec.point_preset({}).algo_kwargs["n_epochs"] == 2
 
 
+def test_a_warm_start_from_trials_older_than_an_opt_in_field_takes_the_field_at_its_default(tmp_path):
+    # random_corner_round2's trials were recorded before link_model, message_delay, ... existed: absent means the
+    # field's default (an extension's default is the earlier behaviour); a non-default value here still differs
+    _finished_smoke_sweep(tmp_path / "a")
+    record_path = tmp_path / "a" / "trials" / "proposed-seed0" / "trial.json"
+    record = json.loads(record_path.read_text())
+    for key in ("link_model", "message_delay", "message_expiry"):
+        del record["train_config"][key]
+    record_path.write_text(json.dumps(record))
+    budget = SweepSpec.create("smoke", 1).point_preset({}).total_timesteps
+    SweepSpec.create("smoke", 1, variants=["proposed"], warm_start=tmp_path / "a", total_timesteps=2 * budget)
+    with pytest.raises(ValueError, match=r"'message_delay': \(None, 2\)"):
+        SweepSpec.create("smoke", 1, variants=["proposed"], overrides={"message_delay": 2}, warm_start=tmp_path / "a",
+                         total_timesteps=2 * budget)
+
+
 def test_a_spec_written_before_budget_and_warm_start_existed_loads(tmp_path):
     spec = SweepSpec.create("smoke", 1, variants=["proposed"])
     old = {k: v for k, v in spec.to_dict().items() if k not in ("total_timesteps", "warm_start")}

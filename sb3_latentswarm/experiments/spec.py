@@ -117,6 +117,16 @@ def check_training_settings(preset: Preset, where: str, variants: Sequence[str] 
         raise type(error)(f"{where}: {error}") from None
 
 
+
+def _added_later_at_default(recorded: Mapping[str, Any], key: str, value: Any) -> bool:
+    """True when ``recorded`` (an earlier ``trial.json``'s ``train_config``) lacks the ``SwarmConfig`` field ``key``,
+    added after that trial ran, and this sweep keeps it at its default: an opt-in field's default is the behaviour
+    the earlier code had (the house rule for extensions), so the earlier trial trained the same way."""
+    if key in recorded:
+        return False
+    defaults = {f.name: f.default for f in dataclasses.fields(SwarmConfig)}
+    return key in defaults and json_values(defaults[key]) == value
+
 @dataclass(frozen=True)
 class SweepSpec:
     """A sweep: training seeds x variants x grid points, and the evaluation cells every trained model meets.
@@ -331,6 +341,7 @@ class SweepSpec:
                         for part in ("train_config", "algo_kwargs")
                         for key, value in now[part].items()
                         if record.get(part, {}).get(key) != value
+                        and not (part == "train_config" and _added_later_at_default(record.get(part, {}), key, value))
                     }
                     if record.get("n_envs") != now["n_envs"]:
                         changed["n_envs"] = (record.get("n_envs"), now["n_envs"])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 from pathlib import Path
 
 from sb3_latentswarm.cli.evaluate import check_model_env, load_model
@@ -19,30 +20,12 @@ def command_render(args: argparse.Namespace) -> int:
     if model is not None:
         check_model_env(args, model)
     preset = preset_from_args(args, model)
-    if preset.env is not None:
-        with output_lock(Path(args.output).parent):
-            path = render_adapted_episode(
-                model,
-                preset.env,
-                preset.config,
-                args.output,
-                seed=args.seed,
-                condition=args.condition,
-                fps=args.fps,
-                deterministic=not args.stochastic,
-            )
-        print(f"Wrote {path}")
-        return 0
-    check_model_fits(model, preset.config)
+    if preset.env is not None:  # an adapted env: its own frames
+        render = functools.partial(render_adapted_episode, model, preset.env, preset.config)
+    else:
+        check_model_fits(model, preset.config)
+        render = functools.partial(render_episode, model, preset.config)
     with output_lock(Path(args.output).parent):  # the folder the animation is written into
-        path = render_episode(
-            model,
-            preset.config,
-            args.output,
-            seed=args.seed,
-            condition=args.condition,
-            fps=args.fps,
-            deterministic=not args.stochastic,
-        )
+        path = render(args.output, seed=args.seed, condition=args.condition, fps=args.fps, deterministic=not args.stochastic)
     print(f"Wrote {path}")
     return 0

@@ -1,5 +1,6 @@
-"""The delay-aware policy (``LatentSwarmPolicy(delay_aware=True)``, an extension): each message pooled as it was sent,
-its age an input of the task and memory updates and the predictor; exact replay, the per-UAV agent, the adapter.
+"""Delayed messages (an extension): every policy pools each message as it was sent; a delay-aware one
+(``delay_aware=True``) also reads its age, an input of the task and memory updates and the predictor; exact replay,
+the per-UAV agent, ONNX and the UAV processes, the adapter.
 
 What it receives is defined in ``docs/concepts.md``, "Delayed messages"."""
 
@@ -46,14 +47,15 @@ def test_pooled_message_and_age_on_a_hand_built_case():
     assert has_message.tolist() == [True, False, True]
 
 
-def test_the_policy_pools_what_each_sender_sent_on_a_delay_and_expiry_sequence():
+@pytest.mark.parametrize("delay_aware", [True, False])
+def test_the_policy_pools_what_each_sender_sent_on_a_delay_and_expiry_sequence(delay_aware):
     """A hand-built delivery sequence (mean delay 1, expiry E = 1: a message 2 steps late is lost; of two messages of
     one sender arriving together the fresher is kept): the pooled message at t is the mean of z_{t-1-a}^j over what
-    arrived, the z each sender broadcast a steps before t (its ``sent_message`` at step t - a), and the age input is
-    the mean delay / E."""
+    arrived, the z each sender broadcast a steps before t (its ``sent_message`` at step t - a), for every policy; the
+    age input (the mean delay / E) only for a delay-aware one."""
     env = make_vec_env(1, config=DELAYED.replace(message_expiry=1), seed=0)
-    policy = LatentSwarmPPO("LatentSwarmPolicy", env, n_steps=4, chunk_length=4, batch_size=12, policy_kwargs=AWARE,
-                            seed=0).policy
+    policy = LatentSwarmPPO("LatentSwarmPolicy", env, n_steps=4, chunk_length=4, batch_size=12,
+                            policy_kwargs=dict(TINY_POLICY, delay_aware=delay_aware), seed=0).policy
     assert policy.message_expiry == 1
     # link 1 -> 0 (receiver 0 reads row 0): sent at t with delay d, delivered at t + d when d <= 1
     #   t0: d = 2 (lost); t1: d = 1 (arrives t2); t2: d = 0 (arrives t2, fresher: kept); t3: d = 1 (arrives t4)
@@ -79,7 +81,10 @@ def test_the_policy_pools_what_each_sender_sent_on_a_delay_and_expiry_sequence()
             expected = np.mean([sent_at[t - int(age[t, i, j])][j] for j in senders], axis=0) if len(senders) else 0.0
             np.testing.assert_allclose(step.received_message[i].numpy(), expected, rtol=0, atol=1e-6)
             expected_age = age[t, i, senders].mean() / 1 if len(senders) else 0.0
-            assert step.state.prev_message_age[i, 0].item() == pytest.approx(expected_age)
+            if delay_aware:
+                assert step.state.prev_message_age[i, 0].item() == pytest.approx(expected_age)
+            else:
+                assert step.state.prev_message_age.shape == (3, 0)
         state = step.state
     # the late messages carried older z than the on-time ones would have
     assert not np.allclose(sent_at[3][1], sent_at[4][1])
@@ -87,10 +92,17 @@ def test_the_policy_pools_what_each_sender_sent_on_a_delay_and_expiry_sequence()
 
 def test_delay_aware_is_opt_in_and_off_changes_nothing():
     config = DELAYED
-    off = LatentSwarmPPO("LatentSwarmPolicy", make_vec_env(1, config=config, seed=0), n_steps=4, chunk_length=4, batch_size=12,
-                         policy_kwargs=TINY_POLICY, seed=0).policy
-    assert not off.delay_aware and off.latent_dims[6:] == (0, 0) and "link_age" not in off.layout.actor_keys
+    kwargs = dict(n_steps=4, chunk_length=4, batch_size=12, policy_kwargs=TINY_POLICY, seed=0)
+    # without delay: no link_age, both delay fields have zero columns (the paper's policy)
+    paper = LatentSwarmPPO("LatentSwarmPolicy", make_vec_env(1, config=config.replace(message_delay=0), seed=0),
+                           **kwargs).policy
+    assert not paper.delayed_links and paper.latent_dims[6:] == (0, 0) and "link_age" not in paper.layout.actor_keys
+    # under delay without delay_aware: arrivals pooled as sent (the history is carried), no age input
+    off = LatentSwarmPPO("LatentSwarmPolicy", make_vec_env(1, config=config, seed=0), **kwargs).policy
+    assert not off.delay_aware and off.delayed_links and "link_age" in off.layout.actor_keys
+    assert off.latent_dims[6:] == (2 * off.message_dim, 0)
     assert "delay_aware" not in off._get_constructor_parameters()
+    assert off.task_encoder.weight_ih.shape == paper.task_encoder.weight_ih.shape
     on = LatentSwarmPPO("LatentSwarmPolicy", make_vec_env(1, config=config, seed=0), n_steps=4, chunk_length=4, batch_size=12,
                         policy_kwargs=AWARE, seed=0).policy
     assert on.latent_dims[6:] == (2 * on.message_dim, 1)
@@ -183,10 +195,7 @@ def test_a_seeded_run_trains_saves_and_resumes_exactly(tmp_path):
 def test_agents_fed_each_message_as_sent_fly_the_batched_episode():
     """N LatentSwarmAgents, each given the messages that arrived as their senders broadcast them (z_{t-1-a}) with their
     ages, act as the batched policy on the same episode."""
-    model = aware_model(n_envs=1)
-    generator = th.Generator().manual_seed(1)
-    with th.no_grad():  # give the untrained actor actions that move the swarm
-        model.policy.action_mean.weight.copy_(th.randn(model.policy.action_mean.weight.shape, generator=generator))
+    model = _moving_aware_model()
     policy, n = model.policy, DELAYED.n_agents
     cores = SwarmBatch(DELAYED, 1), SwarmBatch(DELAYED, 1)
     for core in cores:
@@ -222,10 +231,11 @@ def test_agents_fed_each_message_as_sent_fly_the_batched_episode():
     assert late > 0
 
 
-def test_agent_message_ages_are_checked_and_export_and_processes_refuse_a_delay_aware_model(tmp_path):
+def test_agent_message_ages_are_checked():
     model = aware_model(n_envs=1)
     agent = LatentSwarmAgent(model)
     agent.reset(seed=0)
+    assert agent.delay_aware and agent.message_expiry == DELAYED.message_expiry
     obs = {"local_obs": np.zeros(model.observation_space["local_obs"].shape), "proprio": np.zeros(8)}
     two = np.zeros((2, agent.message_dim))
     with pytest.raises(ValueError, match=r"message_ages must hold one age in \[0, 2\] \(steps\) per received message"):
@@ -236,18 +246,94 @@ def test_agent_message_ages_are_checked_and_export_and_processes_refuse_a_delay_
     plain = LatentSwarmPPO("LatentSwarmPolicy", make_vec_env(1, config=DELAYED, seed=0), policy_kwargs=TINY_POLICY)
     other = LatentSwarmAgent(plain)
     other.reset(seed=0)
+    assert not other.delay_aware
     with pytest.raises(ValueError, match="does not read message ages"):
         other.step(obs, two, message_ages=[0, 1])
-    from sb3_latentswarm.agent.uav_process import UavNode
 
-    with pytest.raises(ValueError, match="do not carry message ages"):
-        UavNode(LatentSwarmAgent(model), 0)
-    pytest.importorskip("onnx")
-    from sb3_latentswarm.agent import export_onnx
 
-    with pytest.raises(ValueError, match="does not export a delay-aware policy"):
-        export_onnx(model, tmp_path / "agent.onnx")
-    assert not (tmp_path / "agent.onnx").exists()
+def _moving_aware_model():
+    model = aware_model(n_envs=1)
+    generator = th.Generator().manual_seed(1)
+    with th.no_grad():  # give the untrained actor actions that move the swarm
+        model.policy.action_mean.weight.copy_(th.randn(model.policy.action_mean.weight.shape, generator=generator))
+    return model
+
+
+def test_a_delay_aware_policy_exports_with_its_age_input_and_flies_in_the_simulator(tmp_path):
+    """Format 2: the exported step reads the age; the simulator relays each late message as it was sent with its age
+    (wire version 2); the ONNX UAVs fly the episode of the torch UAVs, and the torch UAVs the batched evaluation's."""
+    pytest.importorskip("onnxruntime")
+    from sb3_latentswarm.agent import OnnxSwarmAgent, export_onnx
+    from sb3_latentswarm.agent.processes import InProcessSwarm, Simulator
+    from sb3_latentswarm.evaluation import evaluate
+
+    model = _moving_aware_model()
+    check = export_onnx(model, tmp_path / "aware.onnx")
+    assert check.max_abs_error <= check.tolerance
+    onnx_agent = OnnxSwarmAgent(tmp_path / "aware.onnx")
+    assert onnx_agent.metadata["format"] == 2 and onnx_agent.delay_aware
+    assert onnx_agent.message_expiry == DELAYED.message_expiry
+    assert [i.name for i in onnx_agent.session.get_inputs()][6:] == [
+        "prev_message_age", "local_obs", "proprio", "message_mean", "message_count", "message_age", "noise"]
+    # one step with and without ages differs (the age is read), and bad ages are refused as by the torch agent
+    obs = {"local_obs": np.zeros(model.observation_space["local_obs"].shape), "proprio": np.zeros(8)}
+    two = np.ones((2, onnx_agent.message_dim))
+    actions = []
+    for ages in ([0, 0], [2, 2]):
+        onnx_agent.reset(seed=0)
+        actions.append(onnx_agent.step(obs, two, deterministic=True, message_ages=ages))
+    assert not np.allclose(*actions)
+    with pytest.raises(ValueError, match="message_ages must hold"):
+        onnx_agent.step(obs, two, message_ages=[0, 3])
+
+    seed = 11
+    torch_uavs = Simulator(InProcessSwarm([LatentSwarmAgent(model) for _ in range(DELAYED.n_agents)]), DELAYED)
+    onnx_uavs = Simulator(InProcessSwarm([OnnxSwarmAgent(tmp_path / "aware.onnx") for _ in range(DELAYED.n_agents)]),
+                          DELAYED)
+    reference = torch_uavs.fly(seed, deterministic=True)
+    record = onnx_uavs.fly(seed, deterministic=True)
+    np.testing.assert_allclose(record.actions, reference.actions, rtol=0, atol=1e-4)
+    np.testing.assert_array_equal(record.delivered, reference.delivered)
+    row = evaluate(model, "proposed", n_episodes=1, seed=seed, deterministic=True, n_envs=1).iloc[0]
+    assert row["coverage"] == pytest.approx(100.0 * reference.summary["coverage"], abs=1e-9)
+    assert row["collisions"] == reference.summary["collisions"]
+    with pytest.raises(ValueError, match="fly it with the delayed links it was trained with"):
+        Simulator(InProcessSwarm([onnx_agent] * DELAYED.n_agents), DELAYED.replace(message_delay=0))
+
+
+def test_delay_aware_uav_processes_fly_the_in_process_episode(tmp_path):
+    """The same episode through real UAV processes (UDP, the ages on the wire) as in process, bit for bit."""
+    pytest.importorskip("onnxruntime")
+    from sb3_latentswarm.agent import OnnxSwarmAgent, export_onnx
+    from sb3_latentswarm.agent.processes import InProcessSwarm, ProcessSwarm, Simulator
+
+    path = tmp_path / "aware.onnx"
+    export_onnx(_moving_aware_model(), path, n_check_steps=2)
+    expected = Simulator(InProcessSwarm([OnnxSwarmAgent(path) for _ in range(DELAYED.n_agents)]), DELAYED).fly(3)
+    with ProcessSwarm(path, DELAYED.n_agents) as swarm:
+        assert swarm.spec.delay_aware and swarm.spec.message_expiry == DELAYED.message_expiry
+        record = Simulator(swarm, DELAYED, deadline=20.0).fly(3)
+    assert not record.missed.any()
+    np.testing.assert_array_equal(record.actions, expected.actions)
+    np.testing.assert_array_equal(record.delivered, expected.delivered)
+
+
+def test_the_wire_carries_message_ages():
+    from sb3_latentswarm.agent.wire import Kind, Wire, WireSpec
+
+    spec = WireSpec(4, 2, 3, 2, delay_aware=True, message_expiry=6)
+    wire = Wire(spec)
+    hello = wire.decode(Wire.hello(1, 1234, spec))
+    assert hello is not None and hello.spec == spec
+    data = wire.step(0, 5, 1, np.zeros(4), np.ones(2), [0, 2], np.arange(6.0).reshape(2, 3), ages=[0, 4])
+    packet = wire.decode(data)
+    assert packet is not None and packet.kind == Kind.STEP
+    assert packet.senders.tolist() == [0, 2] and packet.ages.tolist() == [0, 4]
+    np.testing.assert_array_equal(packet.messages, np.arange(6.0).reshape(2, 3))
+    assert wire.decode(wire.step(0, 5, 1, np.zeros(4), np.ones(2), [], np.zeros((0, 3)))).ages.tolist() == []
+    with pytest.raises(ValueError, match="one age per sender"):
+        wire.step(0, 5, 1, np.zeros(4), np.ones(2), [0, 2], np.zeros((2, 3)), ages=[1])
+    assert wire.decode(b"LSW1" + data[4:]) is None  # version 1 (no ages) is not read
 
 
 # ---------------------------------------------------------------------------------------------- the adapter

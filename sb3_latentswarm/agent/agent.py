@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from sb3_latentswarm.agent.inputs import AgentSpec, AgentStepInfo, check_step
+from sb3_latentswarm.agent.inputs import AgentSpec, AgentStepInfo, check_step, pooled_message_age
 from sb3_latentswarm.envs.observations import PROPRIO_POSITION
 from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
 from sb3_latentswarm.latent_ppo.recurrence import AgentInputs, outgoing_message
@@ -70,6 +70,10 @@ class LatentSwarmAgent:
     def __init__(self, model: Any) -> None:
         self.policy = policy_of(model)
         self.spec = agent_spec(self.policy)
+        self.delay_aware: bool = self.policy.delay_aware
+        """Whether :meth:`step` reads ``message_ages`` (a policy built with ``delay_aware=True``)."""
+        self.message_expiry: int = self.policy.message_expiry
+        """E, the largest message age in steps the policy was built for (0 without delayed links)."""
         self._state: LatentState | None = None
         self._rng = np.random.default_rng()
 
@@ -123,7 +127,7 @@ class LatentSwarmAgent:
         state = self._current_state()
         arrays = check_step(self.spec, observation, received_messages, deterministic, noise, rng, self._rng)
         policy = self.policy
-        message_age = self._message_age(message_ages, arrays.message_count)
+        message_age = pooled_message_age(message_ages, arrays.message_count, policy.message_expiry, policy.delay_aware)
         device = policy.device
         with th.no_grad():
             proprio = th.as_tensor(arrays.proprio, device=device).unsqueeze(0)
@@ -151,21 +155,6 @@ class LatentSwarmAgent:
             best_message=out.state.prev_message.squeeze(0).cpu().numpy(),
         )
         return action, info
-
-    def _message_age(self, message_ages: Any, count: int) -> float | None:
-        """alpha_t = mean age / E of the received messages for a delay-aware policy (0 when none arrived), else None."""
-        if not self.policy.delay_aware:
-            if message_ages is not None:
-                raise ValueError("message_ages given, but this policy does not read message ages (delay_aware=False)")
-            return None
-        if message_ages is None:
-            return 0.0
-        ages = np.asarray(message_ages, dtype=np.float64).reshape(-1) if np.ndim(message_ages) else np.array([np.nan])
-        expiry = self.policy.message_expiry
-        if ages.shape != (count,) or not (np.isfinite(ages).all() and (ages >= 0).all() and (ages <= expiry).all()):
-            raise ValueError(f"message_ages must hold one age in [0, {expiry}] (steps) per received message ({count}), "
-                             f"got {message_ages!r}")
-        return float(ages.mean() / max(expiry, 1)) if count else 0.0
 
     def _current_state(self) -> LatentState:
         if self._state is None:

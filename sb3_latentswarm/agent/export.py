@@ -20,6 +20,12 @@ Inputs (batch dim B: one UAV, or several stepped together; float32 unless noted)
 Outputs: ``action`` (B, action_dim) clipped to the action space, the next state (``next_map_state``, ...,
 ``next_held_message``, in the order above), ``message`` (B, d), z_t = [mu_t; tau_t], what the UAV broadcasts for
 step t + 1, and ``predicted_message`` (B, d), mhat_t (Sec. III-C). All zeros is the state at an episode start.
+
+A delay-aware policy (``delay_aware=True``, an extension; ``docs/concepts.md``, "Delayed messages") is exported in
+format 2: one more state, ``prev_message_age`` (B, 1), alpha_{t-1} (after ``held_message``; output
+``next_prev_message_age``), and one more input, ``message_age`` (B, 1), alpha_t = the mean age of the messages in
+``message_mean`` divided by the expiry E (0 when nothing arrived; after ``message_count``). ``message_mean`` then holds
+each message as its sender broadcast it (:func:`~sb3_latentswarm.agent.onnx_runtime.onnx_io_names`).
 """
 
 from __future__ import annotations
@@ -39,6 +45,7 @@ from gymnasium import spaces
 from torch import nn
 
 from sb3_latentswarm.agent.agent import agent_spec, policy_of
+from sb3_latentswarm.agent.onnx_runtime import FORMATS, onnx_io_names
 from sb3_latentswarm.envs.observations import PROPRIO_POSITION
 from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
 from sb3_latentswarm.latent_ppo.recurrence import AgentInputs, Blocks, agent_update, gru_cell, outgoing_message
@@ -47,9 +54,9 @@ from sb3_latentswarm.utils.atomic import write_bytes
 
 __all__ = ["EXPORT_TOLERANCE", "INPUT_NAMES", "METADATA_KEY", "OUTPUT_NAMES", "OPSET", "ExportCheck", "export_onnx"]
 
-STATE_NAMES = tuple(LatentState._fields[:6])  # (the delay-aware fields are not exported: see export_onnx)
-INPUT_NAMES = (*STATE_NAMES, "local_obs", "proprio", "message_mean", "message_count", "noise")
-OUTPUT_NAMES = ("action", *(f"next_{name}" for name in STATE_NAMES), "message", "predicted_message")
+STATE_NAMES, INPUT_NAMES, OUTPUT_NAMES = onnx_io_names(False)
+"""The names of the paper's exported step (format 1; a delay-aware step: ``onnx_io_names(True)``)."""
+assert STATE_NAMES == LatentState._fields[:6]  # (sent_history is not exported: the received messages come as sent)
 OPSET = 17
 METADATA_KEY = "sb3_latentswarm"
 """The key of the file's metadata (JSON: sizes, action bounds, substitute, the checked error) read by the runtime."""
@@ -78,32 +85,42 @@ class AgentStep(nn.Module):
     def __init__(self, policy: LatentSwarmPolicy) -> None:
         super().__init__()
         self.policy = policy
+        self.state_names, self.input_names, self.output_names = onnx_io_names(policy.delay_aware)
         spec = agent_spec(policy)
         self.action_low = th.tensor(spec.action_low, dtype=th.float32)  # constants of the graph
         self.action_high = th.tensor(spec.action_high, dtype=th.float32)
 
     def forward(self, *tensors: th.Tensor) -> tuple[th.Tensor, ...]:
-        state = _latent_state(tensors[: len(STATE_NAMES)])
-        local_obs, proprio, message_mean, message_count, noise = tensors[len(STATE_NAMES):]
-        has_message = message_count > 0
-        inputs = AgentInputs(
-            keep=th.ones_like(proprio[:, :1]),
-            local_obs=local_obs,
-            proprio=proprio,
-            position=proprio[:, PROPRIO_POSITION],
-            received_message=th.where(has_message.unsqueeze(-1), message_mean, th.zeros_like(message_mean)),
-            has_message=has_message,
-        )
-        out = agent_update(self.policy, inputs, state, _GraphLinears(self.policy))
-        action = self.policy.actions_from_noise(out.state.task_state, noise)
+        named = dict(zip(self.input_names, tensors))
+        state = _latent_state(tensors[: len(self.state_names)])
+        out = agent_update(self.policy, _agent_inputs(named), state, _GraphLinears(self.policy))
+        action = self.policy.actions_from_noise(out.state.task_state, named["noise"])
         action = th.minimum(th.maximum(action, self.action_low), self.action_high)
-        return (action, *out.state[: len(STATE_NAMES)], outgoing_message(out.state), out.predicted_message)
+        exported = [getattr(out.state, name) for name in self.state_names]
+        return (action, *exported, outgoing_message(out.state), out.predicted_message)
+
+
+def _agent_inputs(named: dict[str, th.Tensor]) -> AgentInputs:
+    """:class:`AgentInputs` of one exported step's inputs (by name; ``message_age`` present for a delay-aware step)."""
+    proprio, message_mean = named["proprio"], named["message_mean"]
+    has_message = named["message_count"] > 0
+    return AgentInputs(
+        keep=th.ones_like(proprio[:, :1]),
+        local_obs=named["local_obs"],
+        proprio=proprio,
+        position=proprio[:, PROPRIO_POSITION],
+        received_message=th.where(has_message.unsqueeze(-1), message_mean, th.zeros_like(message_mean)),
+        has_message=has_message,
+        message_age=named.get("message_age"),
+    )
 
 
 def _latent_state(tensors: Sequence[th.Tensor]) -> LatentState:
-    """The exported state fields, completed with the zero-column fields of a policy without ``delay_aware``."""
+    """The exported state fields (6, or 7 with ``prev_message_age``), completed with zero-column fields: the sent
+    history is not exported (a UAV receives each message as its sender broadcast it), nor is the age without delay."""
     empty = tensors[0][:, :0]
-    return LatentState._make((*tensors, empty, empty))
+    age = tensors[6] if len(tensors) > 6 else empty
+    return LatentState._make((*tensors[:6], empty, age))
 
 
 @dataclass(frozen=True)
@@ -138,16 +155,14 @@ def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 1
     :return: the :class:`ExportCheck`
     :raise ImportError: without ``onnx`` and ``onnxruntime`` (``pip install "sb3-latentswarm[deploy]"``)
     :raise RuntimeError: when onnxruntime and torch disagree beyond the tolerance (nothing is written)
-    :raise ValueError: for a delay-aware policy (``delay_aware=True``): the message ages are not an input of the
-        exported step; step it with :class:`~sb3_latentswarm.agent.LatentSwarmAgent` (``message_ages=``)
+    :raise ValueError: for ``n_check_steps`` < 1
+
+    A delay-aware policy (``delay_aware=True``) is exported in format 2, with its age input (the module docstring).
     """
     import onnx
     import onnxruntime as ort
 
     policy = policy_of(model)
-    if policy.delay_aware:
-        raise ValueError("export_onnx does not export a delay-aware policy (delay_aware=True): the message ages are not "
-                         "an input of the exported step; step it with LatentSwarmAgent(model).step(..., message_ages=...)")
     if int(n_check_steps) < 1:
         raise ValueError(f"n_check_steps must be >= 1, got {n_check_steps}")
     module = AgentStep(policy).to("cpu").eval()
@@ -156,23 +171,26 @@ def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 1
     try:
         check_inputs = _check_episode(policy, int(n_check_steps), seed)
         buffer = io.BytesIO()
-        dynamic = {name: {0: "batch"} for name in (*INPUT_NAMES, *OUTPUT_NAMES)}
+        input_names, output_names = module.input_names, module.output_names
+        dynamic = {name: {0: "batch"} for name in (*input_names, *output_names)}
         with th.no_grad(), warnings.catch_warnings():
             # the TorchScript exporter on purpose: the dynamo one fixes the batch size where Python computes with it
             warnings.simplefilter("ignore", DeprecationWarning)
             th.onnx.export(module, tuple(th.as_tensor(x) for x in check_inputs[0]), buffer,  # type: ignore[arg-type]  # a file object works
-                           input_names=list(INPUT_NAMES),
-                           output_names=list(OUTPUT_NAMES), dynamic_axes=dynamic, opset_version=OPSET, dynamo=False)
+                           input_names=list(input_names),
+                           output_names=list(output_names), dynamic_axes=dynamic, opset_version=OPSET, dynamo=False)
         graph = onnx.load_from_string(buffer.getvalue())
         spec = agent_spec(policy)
         metadata = {
-            "format": 1, "state_dims": list(policy.latent_dims[: len(STATE_NAMES)]),
+            "format": FORMATS[policy.delay_aware], "state_dims": _state_dims(policy),
             "local_obs_shape": list(spec.local_obs_shape),
             "proprio_dim": spec.proprio_dim, "message_dim": spec.message_dim, "action_dim": spec.action_dim,
             "action_low": list(spec.action_low), "action_high": list(spec.action_high),
             "message_substitute": policy.message_substitute, "no_memory": policy.no_memory,
             "trained_autocast": policy.autocast,
         }
+        if policy.delay_aware:
+            metadata.update(delay_aware=True, message_expiry=policy.message_expiry)
         onnx.helper.set_model_props(graph, {METADATA_KEY: json.dumps(metadata)})
         data = graph.SerializeToString()
         session = ort.InferenceSession(data, providers=["CPUExecutionProvider"])
@@ -180,7 +198,7 @@ def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 1
         for inputs in check_inputs:
             with th.no_grad():
                 expected = [t.numpy() for t in module(*(th.as_tensor(x) for x in inputs))]
-            got = session.run(list(OUTPUT_NAMES), dict(zip(INPUT_NAMES, inputs)))
+            got = session.run(list(output_names), dict(zip(input_names, inputs)))
             error = max(error, *(float(np.abs(g - e).max()) for g, e in zip(got, expected)))
             if autocast_error is not None:
                 autocast_error = max(autocast_error, float(np.abs(got[0] - _own_step_action(policy, inputs)).max()))
@@ -192,15 +210,23 @@ def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 1
     return ExportCheck(os.fspath(path), error, EXPORT_TOLERANCE, autocast_error, int(n_check_steps), len(data))
 
 
+def _state_dims(policy: LatentSwarmPolicy) -> list[int]:
+    """The sizes of the exported state fields (:func:`onnx_io_names`' state names)."""
+    dims = dict(zip(LatentState._fields, policy.latent_dims))
+    return [dims[name] for name in onnx_io_names(policy.delay_aware)[0]]
+
+
 def _check_episode(policy: LatentSwarmPolicy, n_steps: int, seed: int) -> list[tuple[np.ndarray, ...]]:
     """The inputs of ``n_steps`` steps of 3 UAVs (batch 3) stepped by the float32 export module: observations from the
-    observation space, messages the UAVs' own (every link up every third step, none every fourth)."""
+    observation space, messages the UAVs' own (every link up every third step, none every fourth), and for a
+    delay-aware policy ages drawn in [0, 1] (0 where nothing arrived)."""
     rng = np.random.default_rng(seed)
     local_space, proprio_space = (cast(spaces.Box, policy.observation_space[key]) for key in ("local_obs", "proprio"))
     n = 3
     local_shape = local_space.shape
     module = AgentStep(policy).eval()
-    state = [np.zeros((n, dim), dtype=np.float32) for dim in policy.latent_dims[: len(STATE_NAMES)]]
+    state = [np.zeros((n, dim), dtype=np.float32) for dim in _state_dims(policy)]
+    n_states = len(state)
     message = np.zeros((n, policy.message_dim), dtype=np.float32)
     steps = []
     for t in range(n_steps):
@@ -217,11 +243,13 @@ def _check_episode(policy: LatentSwarmPolicy, n_steps: int, seed: int) -> list[t
         count = links.sum(1)
         mean = (links.astype(np.float32) @ message) / np.maximum(count, 1)[:, None].astype(np.float32)
         noise = rng.standard_normal((n, policy.action_dim)).astype(np.float32) * (t % 2)
-        inputs = (*state, local_obs, proprio, mean.astype(np.float32), count.astype(np.int64), noise)
+        age = (rng.random((n, 1)) * (count[:, None] > 0)).astype(np.float32)
+        inputs = (*state, local_obs, proprio, mean.astype(np.float32), count.astype(np.int64),
+                  *((age,) if policy.delay_aware else ()), noise)
         steps.append(inputs)
         with th.no_grad():
             out = [t.numpy() for t in module(*(th.as_tensor(x) for x in inputs))]
-        state, message = out[1 : 1 + len(STATE_NAMES)], out[1 + len(STATE_NAMES)]
+        state, message = out[1 : 1 + n_states], out[1 + n_states]
         assert all(math.isfinite(float(np.abs(x).max())) for x in out)
     return steps
 
@@ -233,13 +261,11 @@ def _finite(bound: np.ndarray) -> np.ndarray:
 
 def _own_step_action(policy: LatentSwarmPolicy, inputs: tuple[np.ndarray, ...]) -> np.ndarray:
     """The action of the policy's own step (under its autocast) for one step's export inputs."""
-    state = _latent_state([th.as_tensor(x) for x in inputs[: len(STATE_NAMES)]])
-    local_obs, proprio, mean, count, noise = (th.as_tensor(x) for x in inputs[len(STATE_NAMES):])
-    has_message = count > 0
-    agent_inputs = AgentInputs(th.ones(len(count), 1), local_obs, proprio, proprio[:, PROPRIO_POSITION],
-                               th.where(has_message.unsqueeze(-1), mean, th.zeros_like(mean)), has_message)
+    state_names, input_names, _ = onnx_io_names(policy.delay_aware)
+    named = {name: th.as_tensor(x) for name, x in zip(input_names, inputs)}
+    state = _latent_state([named[name] for name in state_names])
     with th.no_grad():
-        out = policy.agent_step(agent_inputs, state)
-        action = policy.actions_from_noise(out.state.task_state, noise)
+        out = policy.agent_step(_agent_inputs(named), state)
+        action = policy.actions_from_noise(out.state.task_state, named["noise"])
     low, high = (np.asarray(bound, dtype=np.float32) for bound in (policy.action_space.low, policy.action_space.high))
     return np.clip(action.numpy(), low, high)

@@ -9,7 +9,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-__all__ = ["AgentSpec", "AgentStepInfo", "StepArrays", "check_step"]
+__all__ = ["AgentSpec", "AgentStepInfo", "StepArrays", "check_step", "pooled_message_age"]
 
 
 @dataclass(frozen=True)
@@ -121,6 +121,31 @@ def check_step(spec: AgentSpec, observation: Any, received_messages: Any, determ
     else:
         eps = (own_rng if rng is None else rng).standard_normal(spec.action_dim).astype(np.float32)
     return StepArrays(local_obs.reshape(-1), proprio, mean.astype(np.float32), count, eps)
+
+
+def pooled_message_age(message_ages: Any, count: int, expiry: int, delay_aware: bool) -> float | None:
+    """alpha_t = mean_{j in N_t^i} a_ij / max(E, 1), the age input of a delay-aware policy (``docs/concepts.md``,
+    "Delayed messages"; 0 when nothing arrived or no ages are given: all on time); ``None`` for a policy that does not
+    read ages.
+
+    :param message_ages: how many steps late each received message is, (count,) in [0, E], or ``None``
+    :param count: how many messages arrived this step
+    :param expiry: E, the largest delay the policy was trained with (steps)
+    :param delay_aware: whether the policy reads ages
+    :raise ValueError: ages given to a policy that does not read them; ages of the wrong shape, non-finite or outside
+        [0, E]
+    """
+    if not delay_aware:
+        if message_ages is not None:
+            raise ValueError("message_ages given, but this policy does not read message ages (delay_aware=False)")
+        return None
+    if message_ages is None:
+        return 0.0
+    ages = np.asarray(message_ages, dtype=np.float64).reshape(-1) if np.ndim(message_ages) else np.array([np.nan])
+    if ages.shape != (count,) or not (np.isfinite(ages).all() and (ages >= 0).all() and (ages <= expiry).all()):
+        raise ValueError(f"message_ages must hold one age in [0, {expiry}] (steps) per received message ({count}), "
+                         f"got {message_ages!r}")
+    return float(ages.mean() / max(expiry, 1)) if count else 0.0
 
 
 def _numeric(name: str, value: Any) -> np.ndarray:

@@ -10,14 +10,26 @@ from typing import Any
 
 import numpy as np
 
-from sb3_latentswarm.agent.inputs import AgentSpec, AgentStepInfo, check_step
+from sb3_latentswarm.agent.inputs import AgentSpec, AgentStepInfo, check_step, pooled_message_age
 
-__all__ = ["OnnxSwarmAgent"]
+__all__ = ["FORMATS", "OnnxSwarmAgent", "onnx_io_names"]
 
 _METADATA_KEY = "sb3_latentswarm"  # export.METADATA_KEY (export imports torch)
-_FORMAT = 1
+FORMATS = {False: 1, True: 2}
+"""The export format of a file, by whether its policy is delay-aware: 1 (the paper's step) or 2 (format 1 with the
+age state ``prev_message_age`` and the age input ``message_age``)."""
 _STATE_NAMES = ("map_state", "task_state", "memory_state", "prev_local_obs", "prev_message", "held_message")
-_OUTPUT_NAMES = ("action", *(f"next_{name}" for name in _STATE_NAMES), "message", "predicted_message")
+
+
+def onnx_io_names(delay_aware: bool) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
+    """``(state, input, output)`` names of an exported step (``export_onnx``'s table); a delay-aware step adds the state
+    ``prev_message_age`` (alpha_{t-1}, (B, 1)) and the input ``message_age`` (alpha_t, (B, 1), after
+    ``message_count``)."""
+    states = (*_STATE_NAMES, "prev_message_age") if delay_aware else _STATE_NAMES
+    age = ("message_age",) if delay_aware else ()
+    inputs = (*states, "local_obs", "proprio", "message_mean", "message_count", *age, "noise")
+    outputs = ("action", *(f"next_{name}" for name in states), "message", "predicted_message")
+    return states, inputs, outputs
 
 
 class OnnxSwarmAgent:
@@ -44,10 +56,18 @@ class OnnxSwarmAgent:
         if raw is None:
             raise ValueError(f"{os.fspath(path)!r} has no {_METADATA_KEY!r} metadata: export it with export_onnx")
         self.metadata: dict[str, Any] = json.loads(raw)
-        if self.metadata.get("format") != _FORMAT:
-            found = self.metadata.get("format")
-            raise ValueError(f"{os.fspath(path)!r} has export format {found!r}; this runtime reads {_FORMAT}")
+        found = self.metadata.get("format")
+        if found not in FORMATS.values():
+            raise ValueError(f"{os.fspath(path)!r} has export format {found!r}; this runtime reads "
+                             f"{sorted(FORMATS.values())}")
         meta = self.metadata
+        self.delay_aware: bool = bool(meta.get("delay_aware", False))
+        """Whether :meth:`step` reads ``message_ages`` (an exported delay-aware policy, format 2)."""
+        self.message_expiry: int = int(meta.get("message_expiry", 0))
+        """E, the largest message age in steps the policy was built for (0 without delayed links)."""
+        if found != FORMATS[self.delay_aware]:
+            raise ValueError(f"{os.fspath(path)!r}: format {found} does not match delay_aware={self.delay_aware}")
+        self._names = onnx_io_names(self.delay_aware)
         self.spec = AgentSpec(tuple(meta["local_obs_shape"]), int(meta["proprio_dim"]), int(meta["message_dim"]),
                               int(meta["action_dim"]), tuple(meta["action_low"]), tuple(meta["action_high"]))
         self.state_dims = tuple(int(d) for d in meta["state_dims"])
@@ -75,18 +95,22 @@ class OnnxSwarmAgent:
         return self._message[0].copy()
 
     def step(self, observation: Any, received_messages: Any, deterministic: bool = False, noise: Any = None,
-             rng: np.random.Generator | None = None, return_info: bool = False) -> Any:
+             rng: np.random.Generator | None = None, return_info: bool = False, message_ages: Any = None) -> Any:
         """One step: see :meth:`LatentSwarmAgent.step <sb3_latentswarm.agent.LatentSwarmAgent.step>` (same arguments,
-        results and errors)."""
+        results and errors; ``message_ages`` for a delay-aware file)."""
         state = self._current_state()
         arrays = check_step(self.spec, observation, received_messages, deterministic, noise, rng, self._rng)
+        age = pooled_message_age(message_ages, arrays.message_count, self.message_expiry, self.delay_aware)
         eps = np.zeros(self.spec.action_dim, dtype=np.float32) if arrays.noise is None else arrays.noise
-        feed = dict(zip(_STATE_NAMES, state))
+        state_names, _, output_names = self._names
+        feed = dict(zip(state_names, state))
         feed.update(local_obs=arrays.local_obs[None], proprio=arrays.proprio[None],
                     message_mean=arrays.message_mean[None], message_count=np.array([arrays.message_count], dtype=np.int64),
                     noise=eps[None])
-        outputs = self.session.run(list(_OUTPUT_NAMES), feed)
-        self._state = outputs[1 : 1 + len(_STATE_NAMES)]
+        if age is not None:
+            feed["message_age"] = np.array([[age]], dtype=np.float32)
+        outputs = self.session.run(list(output_names), feed)
+        self._state = outputs[1 : 1 + len(state_names)]
         self._message = outputs[-2]
         action = outputs[0][0]
         if not return_info:

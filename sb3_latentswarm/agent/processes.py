@@ -2,7 +2,8 @@
 connected by UDP on 127.0.0.1 (:mod:`sb3_latentswarm.agent.wire`).
 
 Each step the :class:`Simulator` draws the links with the env's link model (the core's), sends every UAV its own
-observation and the messages z_{t-1}^j of the peers whose links delivered, and waits for the replies (action a_t and
+observation and the messages z_{t-1}^j of the peers whose links delivered (under delayed links, each arrival as its
+sender broadcast it, z_{t-1-a}^j, with its age a), and waits for the replies (action a_t and
 message z_t) until the step's deadline. A reply that misses the deadline is lost, its action and its message both: the
 UAV hovers (zero command) that step and its peers receive nothing from it next step. A UAV that missed ``lost_after``
 deadlines in a row is *lost*: the simulator stops waiting for it (it still sends it its datagrams and takes its reply
@@ -46,7 +47,10 @@ class StepInput(NamedTuple):
     senders: list[int]
     """The peers j whose links j -> i delivered and whose message arrived, ascending."""
     messages: np.ndarray
-    """Their messages z_{t-1}^j, (k, d) float32, in the order of ``senders``."""
+    """Their messages z_{t-1-a}^j as they were broadcast, (k, d) float32, in the order of ``senders``."""
+    ages: np.ndarray | None = None
+    """How many steps late each message is (a; 0 = on time), (k,) int, in the order of ``senders``; ``None``: all on
+    time."""
 
 
 class Reply(NamedTuple):
@@ -82,7 +86,7 @@ class InProcessSwarm:
         replies = {}
         for i, (node, x) in enumerate(zip(self.nodes, inputs)):
             if i not in self._dead:
-                replies[i] = Reply(*node.step(step, x.local_obs, x.proprio, x.messages), 0.0)
+                replies[i] = Reply(*node.step(step, x.local_obs, x.proprio, x.messages, x.ages), 0.0)
         return replies
 
     def kill(self, uav: int) -> None:
@@ -296,7 +300,12 @@ class Simulator:
     :param config: the swarm's configuration (the model's training config, e.g. ``model.swarm_config``)
     :param deadline: seconds each step waits for the replies (and each reset for the ``READY`` s)
     :param lost_after: a UAV that missed this many deadlines in a row is lost (not waited for any more)
-    :raise ValueError: when the transport's model does not fit ``config``
+    :raise ValueError: when the transport's model does not fit ``config`` (sizes; a delay-aware model needs the
+        config's delay, ``message_delay`` > 0, and the expiry ``message_expiry`` it was trained with)
+
+    Under delayed links (``config.message_delay`` > 0) the simulator keeps the messages of the last E + 1 steps and
+    relays each arrival as its sender broadcast it, with its age (a message whose sender missed that step's deadline
+    never arrives).
     """
 
     def __init__(self, swarm: InProcessSwarm | ProcessSwarm, config: SwarmConfig, deadline: float = 1.0,
@@ -312,7 +321,14 @@ class Simulator:
                 f"the UAVs' model takes local_obs of {spec.local_obs_size} cells and proprio of {spec.proprio_dim} "
                 f"floats for {swarm.n_agents} UAVs; the config has {o_dim}, {PROPRIO_DIM} and n_agents={n}"
             )
+        if spec.delay_aware and (config.message_delay == 0 or spec.message_expiry != config.message_expiry):
+            raise ValueError(
+                f"the UAVs' model is delay-aware (delay_aware=True, expiry E = {spec.message_expiry}): fly it with the "
+                f"delayed links it was trained with (message_delay > 0, message_expiry = {spec.message_expiry}); the "
+                f"config has message_delay={config.message_delay}, message_expiry={config.message_expiry}"
+            )
         self.core = SwarmBatch(config, 1)
+        self.n_ages = config.message_expiry + 1 if config.message_delay > 0 else 1  # messages kept: E + 1 steps
         self.missed_in_a_row = np.zeros(n, dtype=np.int64)  # kept across episodes: a dead UAV stays lost
         self._episode = 0
 
@@ -333,7 +349,9 @@ class Simulator:
         core.reset(seeds=[seed])
         waited = {i for i in range(n) if self.missed_in_a_row[i] < self.lost_after}
         ready = swarm.reset(episode, seed, deterministic, waited, self.deadline)
-        messages: list[np.ndarray | None] = [ready.get(i) for i in range(n)]
+        # sent[a][j]: what j broadcast a steps before the freshest message, z_{t-1-a}^j (None: not received)
+        sent: list[list[np.ndarray | None]] = [[ready.get(i) for i in range(n)]]
+        sent += [[None] * n for _ in range(self.n_ages - 1)]
         run_start = {i: 0 for i in range(n) if self.missed_in_a_row[i] > 0}
         killed: dict[int, int] = {}
         rows: list[tuple[np.ndarray, ...]] = []
@@ -343,20 +361,22 @@ class Simulator:
                 swarm.kill(kill_at[0])
                 killed[kill_at[0]] = t
             links = core.link_rows[0] > 0  # (N, N): [i, j] = j -> i delivers this step
-            arrived = np.array([m is not None for m in messages])
-            delivered = links & arrived[None, :]
+            ages = np.zeros((n, n), np.int64) if core.link_ages is None else core.link_ages[0].astype(np.int64)
+            arrived = np.array([[m is not None for m in by_age] for by_age in sent])  # (E + 1, N)
+            delivered = links & arrived[ages, np.arange(n)[None, :]]
             inputs = []
             for i in range(n):
                 senders = np.flatnonzero(delivered[i]).tolist()
-                stacked = np.stack([messages[j] for j in senders]) if senders else np.zeros((0, d), np.float32)
-                inputs.append(StepInput(core.local_obs[0, i], core.proprio[0, i], senders, stacked))
+                stacked = (np.stack([sent[ages[i, j]][j] for j in senders]) if senders
+                           else np.zeros((0, d), np.float32))
+                inputs.append(StepInput(core.local_obs[0, i], core.proprio[0, i], senders, stacked, ages[i, senders]))
             waited = {i for i in range(n) if self.missed_in_a_row[i] < self.lost_after}
             start = time.perf_counter()
             replies = swarm.step(episode, t, inputs, waited, self.deadline)
             step_s = time.perf_counter() - start
             actions = np.zeros((n, swarm.spec.action_dim), dtype=np.float32)  # hover: no reply, no command
             compute, round_trip = np.full(n, np.nan), np.full(n, np.nan)
-            messages = [None] * n
+            messages: list[np.ndarray | None] = [None] * n
             for i in range(n):
                 reply = replies.get(i)
                 if reply is None:
@@ -367,6 +387,7 @@ class Simulator:
                 self.missed_in_a_row[i] = 0
                 actions[i], messages[i] = reply.action, np.array(reply.message, dtype=np.float32)
                 compute[i], round_trip[i] = reply.compute_s, reply.round_trip_s
+            sent = [messages, *sent[:-1]]
             rows.append((actions, links, delivered, np.isnan(compute), compute, round_trip, np.float64(step_s)))
             _, terminated, truncated = core.step(core.check_actions(actions.reshape(1, n, -1)))
             t += 1

@@ -49,18 +49,18 @@ class UavNode:
     as the evaluation runner does (:func:`~sb3_latentswarm.utils.seeding.action_noise_rng` of the episode seed, one
     ``(N, action_dim)`` draw per step, row ``index``), so a sampled episode is the one ``evaluate`` flies.
 
+    A delay-aware agent (``delay_aware=True``) gets the message ages the simulator relays; any other agent gets the
+    messages only (each as its sender broadcast it).
+
     :param agent: a :class:`~sb3_latentswarm.agent.LatentSwarmAgent` or :class:`~sb3_latentswarm.agent.OnnxSwarmAgent`
-    :raise ValueError: for a delay-aware policy (``delay_aware=True``): the wire protocol carries no message ages
     """
 
     def __init__(self, agent: Any, index: int) -> None:
-        if getattr(getattr(agent, "policy", None), "delay_aware", False):
-            raise ValueError("the UAV processes do not carry message ages (the wire protocol has none): a delay-aware "
-                             "policy (delay_aware=True) runs as LatentSwarmAgent.step(..., message_ages=...)")
         self.agent = agent
         self.index = int(index)
         spec = agent.spec
-        self.spec = WireSpec(int(np.prod(spec.local_obs_shape)), spec.proprio_dim, spec.message_dim, spec.action_dim)
+        self.spec = WireSpec(int(np.prod(spec.local_obs_shape)), spec.proprio_dim, spec.message_dim, spec.action_dim,
+                             bool(agent.delay_aware), int(agent.message_expiry))
         self._noise: np.random.Generator | None = None
         self._n_agents = 1
         self._drawn = 0  # steps whose noise has been drawn
@@ -72,10 +72,11 @@ class UavNode:
         self._n_agents, self._drawn = int(n_agents), 0
         return self.agent.message()
 
-    def step(self, step: int, local_obs: np.ndarray, proprio: np.ndarray, messages: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray, float]:
-        """Step ``step`` (0 after reset) with the messages that were relayed: the action, the next message and the
-        agent step's compute time in seconds. Noise of steps this UAV never saw is drawn and dropped."""
+    def step(self, step: int, local_obs: np.ndarray, proprio: np.ndarray, messages: np.ndarray,
+             ages: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+        """Step ``step`` (0 after reset) with the messages that were relayed (and their ages in steps, ``None``: on
+        time): the action, the next message and the agent step's compute time in seconds. Noise of steps this UAV
+        never saw is drawn and dropped."""
         noise = None
         if self._noise is not None:
             while self._drawn <= step:
@@ -83,7 +84,9 @@ class UavNode:
                 self._drawn += 1
         observation = {"local_obs": local_obs.reshape(self.agent.spec.local_obs_shape), "proprio": proprio}
         start = time.perf_counter()
-        action = self.agent.step(observation, messages, deterministic=self._noise is None, noise=noise)
+        message_ages = ages if self.spec.delay_aware else None
+        action = self.agent.step(observation, messages, deterministic=self._noise is None, noise=noise,
+                                 message_ages=message_ages)
         compute_s = time.perf_counter() - start
         return action, self.agent.message(), compute_s
 
@@ -127,7 +130,8 @@ def serve(sock: socket.socket, node: UavNode, sim_port: int, idle_timeout: float
         elif packet.kind == Kind.STEP and packet.episode == episode:
             assert packet.local_obs is not None and packet.proprio is not None and packet.messages is not None
             try:
-                action, message, compute_s = node.step(packet.step, packet.local_obs, packet.proprio, packet.messages)
+                action, message, compute_s = node.step(packet.step, packet.local_obs, packet.proprio, packet.messages,
+                                                       packet.ages)
             except ValueError as error:
                 print(f"UAV {node.index}: step {packet.step} refused: {error}", file=sys.stderr, flush=True)
                 continue

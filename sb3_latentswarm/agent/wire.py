@@ -1,17 +1,19 @@
 """The datagrams between the simulator process and the UAV processes (UDP on 127.0.0.1; numpy and the standard
 library only, so a UAV process never imports torch).
 
-Every datagram starts with the header ``<4sBIIH``: magic ``b"LSW1"``, kind, episode, step, UAV index; the body
-follows in little-endian order:
+Every datagram starts with the header ``<4sBIIH``: magic ``b"LSW2"`` (version 2 added the message ages), kind,
+episode, step, UAV index; the body follows in little-endian order:
 
 ==========  ==============  ===========================================================================================
 kind        direction       body
 ==========  ==============  ===========================================================================================
-``HELLO``   UAV -> sim      pid (u32), o_dim, e_dim, d, action_dim (u16 each): the UAV's model has loaded
+``HELLO``   UAV -> sim      pid (u32), o_dim, e_dim, d, action_dim (u16 each), delay-aware (u8), E (u16): the UAV's
+                            model has loaded (E: the largest message age it was built for, 0 without delay)
 ``RESET``   sim -> UAV      episode seed (u64), N (u16), deterministic (u8)
 ``READY``   UAV -> sim      z (d float32): the message after reset (zero)
-``STEP``    sim -> UAV      o_t (o_dim int8), e_t (e_dim float32), k (u16), the k senders (u16), their k messages
-                            z_{t-1}^j (k x d float32): only the messages whose links delivered this step
+``STEP``    sim -> UAV      o_t (o_dim int8), e_t (e_dim float32), k (u16), the k senders (u16), their k ages (u16,
+                            steps late; 0 without delay), their k messages z_{t-1-a}^j (k x d float32, each as its
+                            sender broadcast it): only the messages that arrived this step
 ``ACTION``  UAV -> sim      the step's compute time (float64 s), a_t (action_dim float32), z_t (d float32)
 ``STOP``    sim -> UAV      (none): the UAV process exits
 ==========  ==============  ===========================================================================================
@@ -33,9 +35,9 @@ HOST = "127.0.0.1"
 """The loopback interface: nothing here listens beyond this machine."""
 MAX_DATAGRAM = 65_507
 """The largest UDP payload over IPv4."""
-_MAGIC = b"LSW1"
+_MAGIC = b"LSW2"
 _HEADER = struct.Struct("<4sBIIH")
-_HELLO = struct.Struct("<IHHHH")
+_HELLO = struct.Struct("<IHHHHBH")
 _RESET = struct.Struct("<QHB")
 _COUNT = struct.Struct("<H")
 _SECONDS = struct.Struct("<d")
@@ -82,6 +84,10 @@ class WireSpec:
     message_dim: int
     """d = d_mu + d_tau."""
     action_dim: int
+    delay_aware: bool = False
+    """Whether the UAV's policy reads message ages (``delay_aware=True``, an extension)."""
+    message_expiry: int = 0
+    """E, the largest message age (steps) the policy was built for; 0 without delayed links."""
 
 
 class Packet(NamedTuple):
@@ -99,6 +105,8 @@ class Packet(NamedTuple):
     local_obs: np.ndarray | None = None
     proprio: np.ndarray | None = None
     senders: np.ndarray | None = None
+    ages: np.ndarray | None = None
+    """(k,) uint16 for ``STEP``: how many steps late each message is."""
     messages: np.ndarray | None = None
     """(k, d) for ``STEP``; (d,) for ``READY`` and ``ACTION`` (the UAV's own message)."""
     action: np.ndarray | None = None
@@ -121,7 +129,8 @@ class Wire:
     @staticmethod
     def hello(uav: int, pid: int, spec: WireSpec) -> bytes:
         return Wire.header(Kind.HELLO, 0, 0, uav) + _HELLO.pack(
-            pid, spec.local_obs_size, spec.proprio_dim, spec.message_dim, spec.action_dim
+            pid, spec.local_obs_size, spec.proprio_dim, spec.message_dim, spec.action_dim, int(spec.delay_aware),
+            spec.message_expiry,
         )
 
     @staticmethod
@@ -136,13 +145,18 @@ class Wire:
         return self.header(Kind.READY, episode, 0, uav) + self._floats(message, self.spec.message_dim)
 
     def step(self, episode: int, step: int, uav: int, local_obs: np.ndarray, proprio: np.ndarray, senders: list[int],
-             messages: np.ndarray) -> bytes:
+             messages: np.ndarray, ages: list[int] | np.ndarray | None = None) -> bytes:
+        """``ages``: how many steps late each message is, in the order of ``senders`` (``None``: all on time)."""
+        ages = np.zeros(len(senders), dtype="<u2") if ages is None else np.asarray(ages, dtype="<u2")
+        if ages.shape != (len(senders),):
+            raise ValueError(f"expected one age per sender ({len(senders)}), got shape {ages.shape}")
         data = b"".join((
             self.header(Kind.STEP, episode, step, uav),
             np.ascontiguousarray(local_obs, dtype=np.int8).reshape(-1).tobytes(),
             self._floats(proprio, self.spec.proprio_dim),
             _COUNT.pack(len(senders)),
             np.asarray(senders, dtype="<u2").tobytes(),
+            ages.tobytes(),
             np.ascontiguousarray(messages, dtype="<f4").tobytes(),
         ))
         if len(data) > MAX_DATAGRAM:
@@ -178,8 +192,8 @@ class Wire:
         spec = self.spec
         d = spec.message_dim
         if kind == Kind.HELLO:
-            pid, *sizes = _HELLO.unpack(body)
-            return head._replace(pid=pid, spec=WireSpec(*sizes))
+            pid, o_dim, e_dim, d_msg, a_dim, delay_aware, expiry = _HELLO.unpack(body)
+            return head._replace(pid=pid, spec=WireSpec(o_dim, e_dim, d_msg, a_dim, bool(delay_aware), expiry))
         if kind == Kind.RESET:
             seed, n_agents, deterministic = _RESET.unpack(body)
             return head._replace(seed=seed, n_agents=n_agents, deterministic=bool(deterministic))
@@ -192,9 +206,10 @@ class Wire:
             offset = o + 4 * e
             (k,) = _COUNT.unpack_from(body, offset)
             senders = np.frombuffer(body, "<u2", k, offset + _COUNT.size)
-            offset += _COUNT.size + 2 * k
+            ages = np.frombuffer(body, "<u2", k, offset + _COUNT.size + 2 * k)
+            offset += _COUNT.size + 4 * k
             messages = self._exact(body[offset:], k * d).reshape(k, d)
-            return head._replace(local_obs=local_obs, proprio=proprio, senders=senders, messages=messages)
+            return head._replace(local_obs=local_obs, proprio=proprio, senders=senders, ages=ages, messages=messages)
         if kind == Kind.ACTION:
             (compute_s,) = _SECONDS.unpack_from(body)
             rest = body[_SECONDS.size :]

@@ -150,7 +150,8 @@ class LatentSwarmPolicy(BasePolicy):
         callers: reading it says whether the substitute is ``"zero"``, setting it switches between ``"zero"`` and
         ``"predicted"``)
     :param no_memory: ablation: rho is zeroed before every use
-    :param delay_aware: (extension, opt-in) pool delayed messages as sent and read their age (docs/concepts.md, delay)
+    :param delay_aware: (extension, opt-in) read the age of the pooled message (needs delayed links, the ``link_age``
+        key; under delay every policy pools each arrival as it was sent: docs/concepts.md, "Delayed messages")
     """
 
     # narrowed from BasePolicy's Space: __init__ accepts only these
@@ -354,9 +355,17 @@ class LatentSwarmPolicy(BasePolicy):
         self.message_substitute = "zero" if value else "predicted"
 
     @property
+    def delayed_links(self) -> bool:
+        """Whether the policy was built for delayed links (the ``link_age`` key in its observation space): then every
+        arrival is pooled as it was sent (``docs/concepts.md``, "Delayed messages"); ``delay_aware`` adds its age."""
+        return LINK_AGE_KEY in self.layout.actor_keys
+
+    @property
     def latent_dims(self) -> tuple[int, ...]:
         """Sizes of the :class:`LatentState` fields, in field order."""
-        delay = (self.message_expiry * self.message_dim, 1) if self.delay_aware else (0, 0)  # (zero columns when off)
+        # sent_history: E messages under delayed links (every policy pools arrivals as sent), zero columns without;
+        # prev_message_age: one column for a delay-aware policy, zero otherwise
+        delay = (self.message_expiry * self.message_dim if self.delayed_links else 0, int(self.delay_aware))
         return (self.map_dim, self.task_dim, self.memory_dim, self.local_obs_dim, self.message_dim, self.message_dim, *delay)
 
     def initial_state(self, n_slots: int) -> LatentState:
@@ -398,7 +407,7 @@ class LatentSwarmPolicy(BasePolicy):
             position=self.map_position(obs, proprio),
             link_mask=link_mask,
             has_message=(link_row.sum(-1) > 0),
-            link_age=obs[LINK_AGE_KEY].float().view_as(link_mask) if self.delay_aware else None,
+            link_age=obs[LINK_AGE_KEY].float().view_as(link_mask) if self.delayed_links else None,
         )
 
     def map_position(self, obs: dict[str, th.Tensor], proprio: th.Tensor) -> th.Tensor:

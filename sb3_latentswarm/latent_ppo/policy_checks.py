@@ -77,19 +77,22 @@ def check_observation_space(observation_space: spaces.Space) -> ObservationLayou
 
 def check_delay_aware(delay_aware: Any, observation_space: spaces.Dict,
                       layout: ObservationLayout) -> tuple[bool, int, ObservationLayout]:
-    """``delay_aware`` checked against the observation space: ``(delay_aware, E, layout)`` with E the expiry (the
-    upper bound of ``link_age``; 0 when off) and the layout's actor keys extended by ``link_age`` when on.
+    """``delay_aware`` checked against the observation space: ``(delay_aware, E, layout)``.
+
+    With delayed links (the ``link_age`` key in the space) every policy pools each arrival as it was sent, so E is
+    the expiry (the upper bound of ``link_age``) and the layout's actor keys are extended by ``link_age``, whatever
+    ``delay_aware`` says; ``delay_aware`` only adds the age input. Without the key: E = 0 and the layout unchanged.
 
     :raise TypeError: ``delay_aware`` is not a bool
     :raise ValueError: ``delay_aware=True`` without the ``link_age`` key (links without delay)
     """
     if not isinstance(delay_aware, (bool, np.bool_)):
         raise TypeError(f"delay_aware must be a bool, got {delay_aware!r}")
-    if not delay_aware:
-        return False, 0, layout
     if LINK_AGE_KEY not in observation_space.spaces:
-        raise ValueError(f"delay_aware=True reads the observation key {LINK_AGE_KEY!r} (links with delay: "
-                         f"SwarmConfig.message_delay > 0, or a delayed link model in the adapter); the observation "
-                         f"space has {list(observation_space.spaces)}")
+        if delay_aware:
+            raise ValueError(f"delay_aware=True reads the observation key {LINK_AGE_KEY!r} (links with delay: "
+                             f"SwarmConfig.message_delay > 0, or a delayed link model in the adapter); the observation "
+                             f"space has {list(observation_space.spaces)}")
+        return False, 0, layout
     expiry = int(np.max(cast(spaces.Box, observation_space[LINK_AGE_KEY]).high))
-    return True, expiry, layout._replace(actor_keys=layout.actor_keys + (LINK_AGE_KEY,))
+    return bool(delay_aware), expiry, layout._replace(actor_keys=layout.actor_keys + (LINK_AGE_KEY,))

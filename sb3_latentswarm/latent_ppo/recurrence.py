@@ -18,10 +18,11 @@ Per UAV i at step t, in the paper's order:
   update: the map state never sees a predicted message)
 * task (Sec. III-A): tau_t = F_theta(tau_{t-1}, o_t, e_t, mu_{t-1}, mbar_t)
 
-Under delayed links (an extension, opt-in: ``LatentSwarmPolicy(delay_aware=True)``) a message of j that arrives a_ij
-steps late is pooled as it was sent, z_{t-1-a_ij}^j (:func:`pool_delayed_messages`), and the pooled message's age
-alpha_t = mean_{j in N_t^i} a_ij / E (0 when nothing arrived) is one more input of the task update (beside mbar_t),
-the memory update (alpha_{t-1}, beside mbar_{t-1}) and the predictor (P_zeta(rho_t, o_t, e_t, alpha_t)).
+Under delayed links (an extension, opt-in: ``SwarmConfig.message_delay > 0`` or a delayed adapter link model) a
+message of j that arrives a_ij steps late is pooled as it was sent, z_{t-1-a_ij}^j (:func:`pool_delayed_messages`),
+by every policy. A delay-aware policy (``LatentSwarmPolicy(delay_aware=True)``, opt-in) also reads the pooled
+message's age alpha_t = mean_{j in N_t^i} a_ij / E (0 when nothing arrived), one more input of the task update (beside
+mbar_t), the memory update (alpha_{t-1}, beside mbar_{t-1}) and the predictor (P_zeta(rho_t, o_t, e_t, alpha_t)).
 """
 
 from __future__ import annotations
@@ -103,8 +104,8 @@ class StepInputs(NamedTuple):
     has_message: th.Tensor
     """Whether N_t^i is not empty, (..., B) bool."""
     link_age: th.Tensor | None = None
-    """Delay-aware policies only: [..., s, i, j] = how many steps late the message of j -> i is (0 where nothing
-    arrived), float, (..., n_swarms, N, N); ``None`` otherwise."""
+    """Delayed links only: [..., s, i, j] = how many steps late the message of j -> i is (0 where nothing arrived),
+    float, (..., n_swarms, N, N); ``None`` without delay."""
 
 
 class StepOutput(NamedTuple):
@@ -246,13 +247,13 @@ def swarm_step(policy: LatentSwarmPolicy, inputs: StepInputs, state: LatentState
     if inputs.link_age is None:
         received_message, has_message = pool_messages(sent, inputs.link_mask)
         message_age = None
-    else:  # delay-aware: z_{t-1-a} of each arrival from the senders' histories [z_{t-1}; z_{t-2}; ...; z_{t-1-E}]
+    else:  # delayed links: z_{t-1-a} of each arrival from the senders' histories [z_{t-1}; z_{t-2}; ...; z_{t-1-E}]
         history = th.cat([sent.flatten(0, 1), state.sent_history * inputs.keep], dim=-1)  # (B, (E + 1) d)
         sent_by_age = history.view(n_swarms, n_agents, -1, policy.message_dim)
         received_message, has_message, message_age = pool_delayed_messages(
             sent_by_age, inputs.link_mask, inputs.link_age, policy.message_expiry)
     agent_inputs = AgentInputs(inputs.keep, inputs.local_obs, inputs.proprio, inputs.position, received_message,
-                               has_message, message_age)
+                               has_message, message_age if policy.delay_aware else None)
     out = agent_update(policy, agent_inputs, state, linears)
     if inputs.link_age is None:
         return out

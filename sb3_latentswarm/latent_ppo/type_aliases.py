@@ -31,9 +31,9 @@ class LatentState(NamedTuple):
     Only read when ``message_substitute="hold_last"`` (an extension beyond the paper); always carried, so a condition
     can switch to it at test time."""
     sent_history: th.Tensor
-    """Delay-aware policies only (``delay_aware=True``, an extension): the messages this agent sent before z_{t-1},
+    """Delayed links only (the ``link_age`` key, an extension): the messages this agent sent before z_{t-1},
     [z_{t-2}; ...; z_{t-1-E}], so that a message arriving a steps late is pooled as it was sent, (n_slots, E * (d_mu +
-    d_tau)); zero columns otherwise."""
+    d_tau)); zero columns without delay."""
     prev_message_age: th.Tensor
     """Delay-aware policies only: the age of mbar_{t-1} (the mean delay of the messages pooled into it, divided by the
     expiry E; 0 for a substitute), what the memory update reads beside mbar_{t-1}, (n_slots, 1); zero columns

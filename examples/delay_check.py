@@ -12,13 +12,21 @@ Bernoulli outages at p_f 0.3):
       sb3-latentswarm train --preset coordination --set message_delay=2 message_expiry=4 delay_aware=true \\
           --seed S --output runs/delay_check/delay2-seedS
 
+- ``blind``: the delayed channel of ``delay2``, learned by the policy without the age input (``delay_aware`` off:
+  messages still pooled as they were sent, their age unknown to it; docs/concepts.md), trained by
+
+      sb3-latentswarm train --preset coordination --set message_delay=2 message_expiry=4 \\
+          --seed S --output runs/delay_check/blind-seedS
+
 Each model is evaluated on 100 held-out episodes (env seeds 1,000,000 ..., sampled actions, the paper's protocol) in
 the conditions ``proposed``, ``no_predictor`` and ``no_comm``: the ``delay2`` models under their delayed channel, the
 ``loss_only`` models under the loss-only channel and, as a third row, under the delayed channel they never trained on
-(they pool late messages as if they were fresh). Writes ``results.csv`` (one row per model, channel and condition)
-and ``run.md`` into ``--output``::
+(built without delay, they have no sent history and pool the senders' current messages). Writes ``results.csv`` (one
+row per model, channel and condition) and ``summary.md`` into ``--output``; rows of the learners not evaluated in this
+call (``--learners``) are kept from the existing ``results.csv``, so a learner can be added later::
 
     python examples/delay_check.py --delay-runs runs/delay_check --seeds 0 1 2
+    python examples/delay_check.py --learners blind --seeds 0 1 2
 """
 
 from __future__ import annotations
@@ -33,13 +41,18 @@ LOSS_ONLY_MODELS = ROOT / "docs" / "results" / "coordination_time_to_coverage" /
 DELAY = {"message_delay": 2, "message_delay_model": "fixed", "message_expiry": 4}
 """The delayed channel: every delivered message 2 steps late, none expires (same delivery rate as without delay)."""
 CONDITIONS = ("proposed", "no_predictor", "no_comm")
+LEARNERS = ("delay2", "blind", "loss_only")
+"""The learners in the order of the summary: the delay-aware one, the age-blind one (both trained under the delayed
+channel; run folders ``{learner}-seedS``), the loss-only one (the committed models)."""
 EVAL_SEED, EVAL_EPISODES = 1_000_000, 100
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--delay-runs", type=Path, default=Path("runs/delay_check"),
-                        help="folder holding delay2-seedS/model.zip (default runs/delay_check)")
+                        help="folder holding delay2-seedS/model.zip and blind-seedS/model.zip (default runs/delay_check)")
+    parser.add_argument("--learners", nargs="+", choices=LEARNERS, default=list(LEARNERS),
+                        help="learners to evaluate (default all); the others' rows are kept from results.csv")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds (default 0 1 2)")
     parser.add_argument("--episodes", type=int, default=EVAL_EPISODES, help="held-out episodes per cell (default 100)")
     parser.add_argument("--output", type=Path, default=ROOT / "docs" / "results" / "coordination_delay_check",
@@ -59,8 +72,9 @@ def markdown_table(frame) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
-    models = {("delay2", s): args.delay_runs / f"delay2-seed{s}" / "model.zip" for s in args.seeds}
-    models.update({("loss_only", s): LOSS_ONLY_MODELS / f"new-s{s}.zip" for s in args.seeds})
+    models = {(learner, s): (LOSS_ONLY_MODELS / f"new-s{s}.zip" if learner == "loss_only"
+                             else args.delay_runs / f"{learner}-seed{s}" / "model.zip")
+              for learner in args.learners for s in args.seeds}
     missing = [str(path) for path in models.values() if not path.is_file()]
     if missing:
         raise SystemExit(f"missing model files: {missing}")
@@ -76,7 +90,7 @@ def main(argv: list[str] | None = None) -> None:
         model = LatentSwarmPPO.load(path, device="cpu")
         base = model.swarm_config.replace(message_delay=0)
         delayed = base.replace(**DELAY)
-        channels = {"delay2": delayed} if learner == "delay2" else {"loss_only": base, "delay2": delayed}
+        channels = {"delay2": delayed} if learner != "loss_only" else {"loss_only": base, "delay2": delayed}
         for channel, config in channels.items():
             for condition in CONDITIONS:
                 start = time.process_time()
@@ -87,6 +101,13 @@ def main(argv: list[str] | None = None) -> None:
                 print(f"{learner} seed {seed} under {channel}, {condition}: coverage {rows[-1]['coverage']:.2f} % "
                       f"({time.process_time() - start:.0f} CPU-s)", flush=True)
     results = pd.DataFrame(rows)
+    previous = args.output / "results.csv"
+    if previous.is_file():  # keep the rows of the learners not evaluated now
+        kept = pd.read_csv(previous)
+        results = pd.concat([kept[~kept["learner"].isin(args.learners)], results], ignore_index=True)
+    order = {learner: i for i, learner in enumerate(LEARNERS)}
+    results = results.sort_values(["learner", "train_seed"], key=lambda c: c.map(order) if c.name == "learner" else c,
+                                  kind="stable").reset_index(drop=True)
     args.output.mkdir(parents=True, exist_ok=True)
     with atomic_path(args.output / "results.csv") as tmp:
         results.to_csv(tmp, index=False)
@@ -97,7 +118,7 @@ def main(argv: list[str] | None = None) -> None:
     with atomic_path(args.output / "summary.md") as tmp:
         tmp.write_text(markdown_table(summary))
     print(summary.to_string(index=False))
-    print(json.dumps({"seeds": args.seeds, "episodes": args.episodes}))
+    print(json.dumps({"learners": args.learners, "seeds": args.seeds, "episodes": args.episodes}))
 
 
 if __name__ == "__main__":

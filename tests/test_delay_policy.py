@@ -247,8 +247,16 @@ def test_agent_message_ages_are_checked():
     other = LatentSwarmAgent(plain)
     other.reset(seed=0)
     assert not other.delay_aware
-    with pytest.raises(ValueError, match="does not read message ages"):
+    with pytest.raises(ValueError, match="does not read message ages .* without their ages, or train with"):
         other.step(obs, two, message_ages=[0, 1])
+
+
+def test_a_delayed_model_takes_another_swarm_size_and_names_a_missing_delay():
+    model = aware_model(n_envs=1)
+    model.set_env(make_vec_env(1, config=DELAYED.replace(n_agents=4), seed=0))  # link_age (N,) follows N
+    assert model.n_agents == 4
+    with pytest.raises(ValueError, match=r"'link_age' of training .* is missing from the new env .*message_delay > 0"):
+        model.set_env(make_vec_env(1, config=DELAYED.replace(message_delay=0), seed=0))
 
 
 def _moving_aware_model():

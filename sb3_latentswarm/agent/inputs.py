@@ -137,7 +137,9 @@ def pooled_message_age(message_ages: Any, count: int, expiry: int, delay_aware: 
     """
     if not delay_aware:
         if message_ages is not None:
-            raise ValueError("message_ages given, but this policy does not read message ages (delay_aware=False)")
+            raise ValueError("message_ages given, but this policy does not read message ages (delay_aware=False): "
+                             "pass the messages as sent without their ages, or train with policy_kwargs "
+                             "delay_aware=True")
         return None
     if message_ages is None:
         return 0.0

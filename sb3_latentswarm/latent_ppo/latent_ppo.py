@@ -36,6 +36,7 @@ from stable_baselines3.common.utils import FloatSchedule, obs_as_tensor, safe_me
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
 from sb3_latentswarm.config import SwarmConfig
+from sb3_latentswarm.envs.observations import LINK_AGE_KEY
 from sb3_latentswarm.envs.vec_env import check_vec_normalize
 from sb3_latentswarm.latent_ppo.arguments import COMPILE_REMOVED, check_algorithm_values, fitting_chunk_length
 from sb3_latentswarm.latent_ppo.buffers import SwarmRolloutBuffer
@@ -63,7 +64,7 @@ PICKLED_SAVE_FORMATS = (1,)
 PAPER_LEARNING_RATE = paper_learning_rate()
 """1e-4 for the first 1000 of 1600 updates, 1e-5 after (Sec. IV)."""
 
-N_AGENT_KEYS = ("link_row", "swarm_proprio")
+N_AGENT_KEYS = ("link_row", "swarm_proprio", LINK_AGE_KEY)
 """Observation keys whose shape depends on the number of agents; the policy's parameters do not."""
 
 def check_save_format(data: dict[str, Any] | None, path: Any, formats: tuple[int, ...] = (SAVE_FORMAT,)) -> None:
@@ -374,9 +375,12 @@ class LatentSwarmPPO(RecurrentPPO):
         n_agents = self._check_swarm_env(env)
         observation_space = cast(spaces.Dict, env.observation_space)  # checked by _check_swarm_env
         for key, space in cast(spaces.Dict, self.observation_space).spaces.items():
-            if key in N_AGENT_KEYS:
-                continue
-            if key not in observation_space.spaces or observation_space[key].shape != space.shape:
+            if key not in observation_space.spaces:
+                hint = (" (the model was trained with delayed links, which give 'link_age': give the new env "
+                        "message_delay > 0)" if key == LINK_AGE_KEY else "")
+                raise ValueError(f"Observation '{key}' of training ({space}) is missing from the new env{hint}; only "
+                                 f"the number of agents may change")
+            if key not in N_AGENT_KEYS and observation_space[key].shape != space.shape:
                 raise ValueError(
                     f"Observation '{key}' of the new env differs from training's ({space}); only the number of agents "
                     f"may change"

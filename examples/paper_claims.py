@@ -24,14 +24,26 @@ The claims (issue "The evidence"):
    the prediction, each in its own setting, by >= 5 points each.
 4. Coverage stays within 3 points across p_f 0 .. 0.5.
 5. Collisions per episode with the evaluated actions are at most the paper's 8.7.
+
+On another env (a sweep with ``--env``, e.g. MPE2 simple_spread) the claims read another metric: ``--metric return
+--metric-range LOW HIGH``. The paper's thresholds, points on its 0-100 coverage scale, become the same percentages of
+``HIGH - LOW`` (state the range before reading the results, e.g. the untrained policy's return and the best trained
+learner's of an earlier check): claim 1 >= 10 %, claim 2 within 1.5 %, claim 3 >= 5 %, claim 4 a spread <= 3 %. The
+steps-to-90 % criterion of claim 1 exists only for coverage, and claim 5 reports the collisions (``collisions``, else
+``sum_collisions``) without a target: the paper's 8.7 is a figure of its own task.
+
+    python examples/paper_claims.py --sweep docs/results/simple_spread_ge_pilot --actions sampled \
+        --metric return --metric-range -34.4 -25.8 --burst-cells table1=5 pf0.9=10
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 from collections.abc import Collection
 from pathlib import Path
+from typing import NamedTuple
 
 from sb3_latentswarm.utils.atomic import write_text
 
@@ -48,6 +60,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--actions", nargs="+", choices=ACTION_MODES, default=list(ACTION_MODES),
                         help="action modes, in the order reported (default: sampled, the paper's protocol, then mean)")
     parser.add_argument("--output", default=None, help="folder for claims.md/csv (default: the sweep folder)")
+    parser.add_argument("--metric", default="coverage",
+                        help="the scores.csv column the claims read (default coverage, in %%; e.g. return)")
+    parser.add_argument("--metric-range", nargs=2, type=float, default=None, metavar=("LOW", "HIGH"),
+                        help="the metric's range, whose percentages replace the paper's coverage points (default "
+                             "0 100 for coverage; required for another metric)")
     parser.add_argument("--with-sweep", nargs="+", default=[], metavar="SWEEP",
                         help="other sweeps whose learners join the comparison (e.g. the independent baseline swept "
                              "separately): same preset, --set, cells, episodes and seeds; their other action mode is "
@@ -69,28 +86,71 @@ PAPER_COLLISIONS = 8.7
 """Collisions per episode of the paper's Proposed model (Table I, N = 3)."""
 
 
+class Scale(NamedTuple):
+    """The metric the claims read and its range: the paper's thresholds are points of a 0-100 coverage scale, so on
+    another metric each becomes the same percentage of ``high - low``."""
+
+    metric: str = "coverage"
+    """The run-score column (``scores.csv``) of claims 1-4."""
+    low: float = 0.0
+    high: float = 100.0
+
+    @property
+    def point(self) -> float:
+        """One of the paper's coverage points in the metric's units: ``(high - low) / 100``."""
+        return (self.high - self.low) / 100.0
+
+    def target(self, points: float) -> str:
+        """A threshold of ``points`` coverage points, as the target column states it."""
+        if self.metric == "coverage" and (self.low, self.high) == (0.0, 100.0):
+            return f"{points:g} points"
+        return f"{points:g} % of the range ({points * self.point:.2f})"
+
+
+COVERAGE = Scale()
+
+
 def _interval(row: pd.Series) -> str:
     return f"{row['mean']:.2f} [{row['mean_low']:.2f}, {row['mean_high']:.2f}] (n={int(row['n_runs'])})"
+
+
+def collisions_column(scores: pd.DataFrame) -> str:
+    """The collisions per episode of a sweep's scores: ``collisions`` (the swarm env) or ``sum_collisions`` (an
+    adapted env's metrics, e.g. simple_spread's)."""
+    return "collisions" if "collisions" in scores.columns or "sum_collisions" not in scores.columns else "sum_collisions"
 
 
 class Cells:
     """Across-seed mean and interval of one metric for (variant, evaluation set, condition)."""
 
-    def __init__(self, scores: pd.DataFrame) -> None:
+    def __init__(self, scores: pd.DataFrame, metric: str = "coverage") -> None:
         by = ["variant", "eval_set", "condition"]
-        self.table = aggregate_scores(scores, by, ["coverage", "collisions", "steps_to_90", "reached_90"]).set_index(
+        self.metric = metric
+        self.collisions = collisions_column(scores)
+        wanted = [metric, self.collisions, "steps_to_90", "reached_90"]
+        self.table = aggregate_scores(scores, by, [c for c in dict.fromkeys(wanted) if c in scores.columns]).set_index(
             [*by, "metric"]
         )
 
-    def get(self, variant: str, eval_set: str, condition: str, metric: str = "coverage") -> pd.Series | None:
-        key = (variant, eval_set, condition, metric)
+    def get(self, variant: str, eval_set: str, condition: str, metric: str | None = None) -> pd.Series | None:
+        """The aggregate row of ``metric`` (default: the claims' metric), or None where the cell has no score."""
+        key = (variant, eval_set, condition, metric or self.metric)
         if key not in self.table.index or pd.isna(self.table.loc[key, "mean"]):
             return None
         return self.table.loc[key]
 
 
-def check_claims(scores: pd.DataFrame, base_cell: str, burst_cells: dict[str, float], p_fail_cells: list[str]) -> list[dict]:
-    cells = Cells(scores)
+def check_claims(
+    scores: pd.DataFrame,
+    base_cell: str,
+    burst_cells: dict[str, float],
+    p_fail_cells: list[str],
+    scale: Scale = COVERAGE,
+) -> list[dict]:
+    """The five claims' rows (``claim``, ``target``, ``measured``, ``met``: yes / no / n/a) on ``scale.metric``, each
+    threshold ``scale.point`` metric units per paper coverage point (module docstring)."""
+    cells = Cells(scores, scale.metric)
+    unit = scale.point
     rows: list[dict] = []
 
     def row(claim: str, target: str, measured: str, met: bool | None) -> None:
@@ -110,18 +170,26 @@ def check_claims(scores: pd.DataFrame, base_cell: str, burst_cells: dict[str, fl
         steps_b = cells.get(best_name, base_cell, own_setting[best_name], "steps_to_90")
         faster = (steps_p is not None and steps_b is not None and steps_p["mean"] <= 0.8 * steps_b["mean"]
                   and steps_p["mean_high"] < steps_b["mean_low"])
-        steps_text = (f"; steps to 90 %: {_interval(steps_p)} vs {_interval(steps_b)}"
-                      if steps_p is not None and steps_b is not None else "; steps to 90 %: not reached by every learner")
-        row("1. Proposed vs best message-free learner", ">= 10 points, or <= 0.8x steps to 90 %, disjoint 95 % CIs",
-            f"Proposed {_interval(proposed)} vs {best_name} {_interval(best)}: {gap:+.2f} points{steps_text}",
-            (gap >= 10 and disjoint) or faster)
+        if scale.metric != "coverage":
+            steps_text, target = "", f">= {scale.target(10)}, disjoint 95 % CIs"
+        else:
+            steps_text = (f"; steps to 90 %: {_interval(steps_p)} vs {_interval(steps_b)}"
+                          if steps_p is not None and steps_b is not None
+                          else "; steps to 90 %: not reached by every learner")
+            target = f">= {scale.target(10)}, or <= 0.8x steps to 90 %, disjoint 95 % CIs"
+        row("1. Proposed vs best message-free learner", target,
+            f"Proposed {_interval(proposed)} vs {best_name} {_interval(best)}: {gap:+.2f}{steps_text}",
+            bool((gap >= 10 * unit and disjoint) or faster))
+    elif proposed is not None:
+        row("1. Proposed vs best message-free learner", f">= {scale.target(10)}, disjoint 95 % CIs",
+            "no message-free learner (`no_comm`, `independent`) in the sweep", None)
     # 2. Full comm as an upper bound (and the in-range variant beside it)
     for condition in ("full_comm", "full_comm_in_range"):
         full = cells.get("proposed", base_cell, condition)
         if proposed is not None and full is not None:
-            row(f"2. {condition} vs Proposed", ">= Proposed - 1.5 points",
+            row(f"2. {condition} vs Proposed", f">= Proposed - {scale.target(1.5)}",
                 f"{_interval(full)} vs {_interval(proposed)}: {full['mean'] - proposed['mean']:+.2f}",
-                bool(full["mean"] >= proposed["mean"] - 1.5))
+                bool(full["mean"] >= proposed["mean"] - 1.5 * unit))
     # 3. Bursty outages: Proposed vs No predictor and No memory (conditions of the proposed models), and vs the
     # learners trained with another substitute (their "proposed" condition is their own substitute)
     for cell, length in burst_cells.items():
@@ -131,22 +199,26 @@ def check_claims(scores: pd.DataFrame, base_cell: str, burst_cells: dict[str, fl
                        for variant in ("zero_substitute", "hold_last")})
         for name, other in rivals.items():
             if base is not None and other is not None:
-                row(f"3. mean outage {length:g} steps: Proposed vs {name}", ">= 5 points",
+                row(f"3. mean outage {length:g} steps: Proposed vs {name}", f">= {scale.target(5)}",
                     f"{_interval(base)} vs {_interval(other)}: {base['mean'] - other['mean']:+.2f}",
-                    bool(base["mean"] - other["mean"] >= 5))
+                    bool(base["mean"] - other["mean"] >= 5 * unit))
     # 4. Flat robustness curve over p_f
     sweep = {cell: cells.get("proposed", cell, "proposed") for cell in p_fail_cells}
     sweep = {k: v for k, v in sweep.items() if v is not None}
     if len(sweep) >= 2:
         means = {k: v["mean"] for k, v in sweep.items()}
         spread = max(means.values()) - min(means.values())
-        row("4. coverage across p_f", "max - min <= 3 points",
-            ", ".join(f"{k}: {v:.2f}" for k, v in means.items()) + f"; spread {spread:.2f}", bool(spread <= 3))
-    # 5. Collisions
-    collisions = cells.get("proposed", base_cell, "proposed", "collisions")
+        row(f"4. {scale.metric} across p_f", f"max - min <= {scale.target(3)}",
+            ", ".join(f"{k}: {v:.2f}" for k, v in means.items()) + f"; spread {spread:.2f}", bool(spread <= 3 * unit))
+    # 5. Collisions: the paper's figure is a target only on its own task
+    collisions = cells.get("proposed", base_cell, "proposed", cells.collisions)
     if collisions is not None:
-        row("5. collisions per episode (Proposed)", f"<= {PAPER_COLLISIONS} (the paper's)", _interval(collisions),
-            bool(collisions["mean"] <= PAPER_COLLISIONS))
+        if scale.metric == "coverage":
+            row("5. collisions per episode (Proposed)", f"<= {PAPER_COLLISIONS} (the paper's)", _interval(collisions),
+                bool(collisions["mean"] <= PAPER_COLLISIONS))
+        else:
+            row("5. collisions per episode (Proposed)", "none (the paper's 8.7 is of its own task)",
+                f"{cells.collisions}: {_interval(collisions)}", None)
     return rows
 
 
@@ -213,10 +285,16 @@ def mode_scores(sweep: Path, spec: dict, mode: str, cache: Path) -> tuple[pd.Dat
 
 
 def claim_figures(
-    scores: pd.DataFrame, base_cell: str, burst_cells: dict[str, float], p_fail_cells: list[str], output: Path
+    scores: pd.DataFrame,
+    base_cell: str,
+    burst_cells: dict[str, float],
+    p_fail_cells: list[str],
+    output: Path,
+    scale: Scale = COVERAGE,
 ) -> list[Path]:
     """One figure per claim, ``claim_<k>_<name>.png`` in ``output``, from the same cells as :func:`check_claims`."""
-    aggregate = Cells(scores).table.reset_index()
+    table = Cells(scores, scale.metric)
+    aggregate = table.table.reset_index()
     present = set(map(tuple, aggregate[["variant", "eval_set", "condition"]].to_numpy()))
 
     def cell(label: str, variant: str, eval_set: str, condition: str) -> list[tuple[str, dict[str, object]]]:
@@ -229,28 +307,32 @@ def claim_figures(
             + cell("no_comm learner (trained without links)", "no_comm", base_cell, "no_comm")
             + cell("independent RecurrentPPO", "independent", base_cell, "proposed"),
             title="Claim 1: the proposed learner against the message-free learners",
+            metric=scale.metric,
         ),
         "claim_2_full_comm": dict(
             cells=[c for condition in ("proposed", "full_comm", "full_comm_in_range")
                    for c in cell(condition.replace("_", " "), "proposed", base_cell, condition)],
             title="Claim 2: the proposed model with every link forced up",
+            metric=scale.metric,
         ),
         "claim_3_bursty_outages": dict(
             cells=[c for name, length in burst_cells.items() for condition in ("proposed", "no_predictor", "no_memory")
                    for c in cell(f"{condition.replace('_', ' ')}, mean outage {length:g}", "proposed", name, condition)],
             title="Claim 3: predictor and memory under bursty outages",
+            metric=scale.metric,
         ),
         "claim_4_p_fail": dict(
             cells=[c for name in p_fail_cells for c in cell(name.replace("=", " = "), "proposed", name, "proposed")],
-            title="Claim 4: the proposed model's coverage across p_f",
+            title=f"Claim 4: the proposed model's {scale.metric} across p_f",
+            metric=scale.metric,
         ),
         "claim_5_collisions": dict(
             cells=cell("proposed", "proposed", base_cell, "proposed")
             + cell("no_comm learner (own condition)", "no_comm", base_cell, "no_comm")
             + cell("independent RecurrentPPO", "independent", base_cell, "proposed"),
             title="Claim 5: collisions per episode",
-            metric="collisions",
-            reference=(PAPER_COLLISIONS, f"paper: {PAPER_COLLISIONS}"),
+            metric=table.collisions,
+            reference=(PAPER_COLLISIONS, f"paper: {PAPER_COLLISIONS}") if scale.metric == "coverage" else None,
         ),
     }
     paths = []
@@ -266,6 +348,16 @@ def main(argv: list[str] | None = None) -> None:
     sweep = Path(args.sweep)
     if not (sweep / "scores.csv").exists():
         parser.error(f"--sweep: no scores.csv in {sweep} (run the sweep, or write its report, first)")
+    if args.metric_range is None and args.metric != "coverage":
+        parser.error(f"--metric {args.metric}: give --metric-range LOW HIGH (e.g. the untrained and the best trained "
+                     "learner's return), whose percentages replace the paper's coverage points")
+    low, high = args.metric_range if args.metric_range is not None else (0.0, 100.0)
+    if not (math.isfinite(low) and math.isfinite(high) and high > low):
+        parser.error(f"--metric-range must be two finite numbers LOW < HIGH, got {low} {high}")
+    scale = Scale(args.metric, low, high)
+    header_row = pd.read_csv(sweep / "scores.csv", nrows=0).columns
+    if args.metric not in header_row:
+        parser.error(f"--metric {args.metric}: not a column of {sweep / 'scores.csv'}; it has {', '.join(header_row)}")
     spec = json.loads((sweep / "sweep.json").read_text())
     others = []
     for folder in map(Path, args.with_sweep):
@@ -294,7 +386,7 @@ def main(argv: list[str] | None = None) -> None:
         scores = pd.concat([part for part, _ in parts], ignore_index=True)
         source = "; ".join(where for _, where in parts)
         first_scores = scores if first_scores is None else first_scores
-        table = pd.DataFrame(check_claims(scores, args.base_cell, burst_cells, p_fail_cells))
+        table = pd.DataFrame(check_claims(scores, args.base_cell, burst_cells, p_fail_cells, scale))
         table.insert(0, "actions", mode)
         tables.append(table)
         note = " (the paper's protocol, Sec. III-D)" if mode == "sampled" else " (the Gaussian's mean)"
@@ -306,9 +398,13 @@ def main(argv: list[str] | None = None) -> None:
     header = (f"Claims on sweep `{sweep}`{joined} (preset `{spec['preset']}`, overrides {spec['overrides']}; training seeds "
               f"per variant: {seeds_per_variant}). Means across training seeds with 95 % stratified-bootstrap "
               "intervals.\n\n")
+    if scale != COVERAGE:
+        header += (f"The claims read `{scale.metric}`; the paper's thresholds, points on its 0-100 coverage scale, are "
+                   f"the same percentages of the range {scale.low:g} to {scale.high:g} ({scale.point:.3f} per "
+                   "point).\n\n")
     markdown = header + "\n".join(sections)
     write_text(output / "claims.md", markdown)
-    figures = claim_figures(first_scores, args.base_cell, burst_cells, p_fail_cells, output)  # the first mode's cells
+    figures = claim_figures(first_scores, args.base_cell, burst_cells, p_fail_cells, output, scale)  # the first mode's cells
     print(markdown)
     print("Figures: " + ", ".join(str(path) for path in figures))
 

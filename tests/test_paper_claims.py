@@ -149,3 +149,43 @@ def test_with_sweep_joins_another_sweeps_learners_on_the_same_cells(tmp_path, ca
     with pytest.raises(SystemExit):
         paper_claims.main(["--sweep", str(main_dir), "--with-sweep", str(other_dir), "--actions", "sampled"])
     assert "its eval_episodes differ from --sweep's" in capsys.readouterr().err
+
+
+def test_claims_on_another_metric_scale_the_papers_points_to_its_range():
+    # simple_spread-like returns: the paper's coverage points become percentages of the stated range (8.6 points)
+    scores = synthetic_scores(proposed=-25.0, no_comm=-26.5, full_comm=-25.1, no_predictor=-25.5, collisions=4.0)
+    scores = scores.rename(columns={"coverage": "return", "collisions": "sum_collisions"})
+    scores["return"] = scores["return"] - scores["train_seed"] + 1.0 + 0.01 * (scores["train_seed"] - 1)  # narrow CIs
+    scale = paper_claims.Scale("return", -34.4, -25.8)
+    rows = paper_claims.check_claims(scores, "table1", {"table1": 5}, ["p_fail=0", "p_fail=0.5"], scale)
+    got = verdicts(rows)
+    assert got["1. Proposed vs best message-free learner"] == "yes"  # +1.5 >= 0.86, disjoint
+    assert got["2. full_comm vs Proposed"] == "yes"  # -0.1 >= -0.129
+    assert got["3. mean outage 5 steps: Proposed vs no_predictor"] == "yes"  # +0.5 >= 0.43
+    assert got["3. mean outage 5 steps: Proposed vs no_memory"] == "yes"  # +1.0
+    assert got["4. return across p_f"] == "no"  # spread 2 > 0.258
+    assert got["5. collisions per episode (Proposed)"] == "n/a"  # the paper's 8.7 is of its own task
+    targets = {row["claim"]: row["target"] for row in rows}
+    assert targets["1. Proposed vs best message-free learner"] == ">= 10 % of the range (0.86), disjoint 95 % CIs"
+    assert "sum_collisions" in rows[-1]["measured"]
+    near = scores.assign(**{"return": scores["return"].where(scores["condition"] != "no_predictor", -25.4)})
+    got = verdicts(paper_claims.check_claims(near, "table1", {"table1": 5}, [], scale))
+    assert got["3. mean outage 5 steps: Proposed vs no_predictor"] == "no"  # +0.4 < 0.43
+
+
+def test_another_metric_needs_its_range(tmp_path):
+    synthetic_scores().rename(columns={"coverage": "return"}).to_csv(tmp_path / "scores.csv", index=False)
+    (tmp_path / "sweep.json").write_text(json.dumps({"preset": "smoke", "overrides": {}, "eval_sets": []}))
+    for extra, message in ((["--metric", "return"], "--metric-range"),
+                           (["--metric", "return", "--metric-range", "1", "1"], "LOW < HIGH"),
+                           (["--metric", "landmarks", "--metric-range", "0", "1"], "not a column")):
+        result = subprocess.run([sys.executable, "examples/paper_claims.py", "--sweep", str(tmp_path), *extra],
+                                cwd=ROOT, capture_output=True, text=True, timeout=120)
+        assert result.returncode == 2 and message in result.stderr, result.stderr
+
+
+def test_claim_1_without_a_message_free_learner_is_not_applicable():
+    scores = synthetic_scores().query("variant == 'proposed'")
+    rows = paper_claims.check_claims(scores, "table1", {}, [])
+    assert verdicts(rows)["1. Proposed vs best message-free learner"] == "n/a"
+    assert "no message-free learner" in rows[0]["measured"]

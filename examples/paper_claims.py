@@ -11,7 +11,7 @@ since). One figure per claim
 (``claim_<k>_<name>.png``: the cells the claim compares, with their intervals). Nothing is tuned here.
 
     python examples/paper_claims.py --sweep runs/sweeps/coordination --burst-cells table1=10 burst30=30
-    python examples/paper_claims.py --sweep docs/results/coordination_round2_600 --burst-cells table1=10 burst30=30 \
+    python examples/paper_claims.py --sweep docs/results/coordination_round2_600 --burst-cells table1=10 burst30=30 \\
         --with-sweep docs/results/coordination_round2_independent_600   # the independent baseline, swept apart
 
 The claims (issue "The evidence"):
@@ -112,6 +112,16 @@ COVERAGE = Scale()
 
 def _interval(row: pd.Series) -> str:
     return f"{row['mean']:.2f} [{row['mean_low']:.2f}, {row['mean_high']:.2f}] (n={int(row['n_runs'])})"
+
+
+def outside_range(scores: pd.DataFrame, scale: Scale) -> str:
+    """A sentence naming the run scores of ``scale.metric`` outside ``[scale.low, scale.high]``, or ``""``."""
+    values = scores[scale.metric].dropna()
+    if values.empty or (values.min() >= scale.low and values.max() <= scale.high):
+        return ""
+    low, high = values.min(), values.max()
+    return (f"run scores of `{scale.metric}` from {low:.2f} to {high:.2f} lie outside the stated range "
+            f"{scale.low:g} to {scale.high:g}")
 
 
 def collisions_column(scores: pd.DataFrame) -> str:
@@ -337,7 +347,7 @@ def claim_figures(
     }
     paths = []
     for name, figure in figures.items():
-        if figure["cells"]:
+        if figure["cells"] and (name != "claim_1_message_free_learners" or len(figure["cells"]) > 1):
             paths.append(plot_cells(aggregate, path=output / f"{name}.png", **figure))
     return paths
 
@@ -357,7 +367,10 @@ def main(argv: list[str] | None = None) -> None:
     scale = Scale(args.metric, low, high)
     header_row = pd.read_csv(sweep / "scores.csv", nrows=0).columns
     if args.metric not in header_row:
-        parser.error(f"--metric {args.metric}: not a column of {sweep / 'scores.csv'}; it has {', '.join(header_row)}")
+        hint = (" (a sweep on an adapted env: give --metric return --metric-range LOW HIGH, docs/own_env.md)"
+                if args.metric == "coverage" and "return" in header_row else "")
+        parser.error(f"--metric {args.metric}: not a column of {sweep / 'scores.csv'}{hint}; it has "
+                     f"{', '.join(header_row)}")
     spec = json.loads((sweep / "sweep.json").read_text())
     others = []
     for folder in map(Path, args.with_sweep):
@@ -372,7 +385,15 @@ def main(argv: list[str] | None = None) -> None:
     burst_cells = {}
     for item in args.burst_cells:
         name, _, length = item.partition("=")
-        burst_cells[name] = float(length)
+        try:
+            burst_cells[name] = float(length)
+        except ValueError:
+            parser.error(f"--burst-cells takes CELL=MEAN_OUTAGE_STEPS (e.g. table1=10), got {item!r}")
+    cells = set(pd.read_csv(sweep / "scores.csv", usecols=["eval_set"])["eval_set"])
+    unknown = [name for name in (args.base_cell, *burst_cells) if name not in cells]
+    if unknown:
+        parser.error(f"unknown cell(s) {', '.join(unknown)} (--base-cell / --burst-cells); the sweep's cells are "
+                     f"{', '.join(sorted(cells))}")
     p_fail_cells = [
         s["name"] for s in spec["eval_sets"] if set(s["overrides"]) == {"p_fail"} and s["overrides"]["p_fail"] <= 0.5
     ]
@@ -399,6 +420,10 @@ def main(argv: list[str] | None = None) -> None:
               f"per variant: {seeds_per_variant}). Means across training seeds with 95 % stratified-bootstrap "
               "intervals.\n\n")
     if scale != COVERAGE:
+        outside = outside_range(first_scores, scale)
+        if outside:
+            header += (f"**Note:** {outside}; the range should come from the same setting (env, N, budget) as this "
+                       "sweep, or the thresholds mean something else.\n\n")
         header += (f"The claims read `{scale.metric}`; the paper's thresholds, points on its 0-100 coverage scale, are "
                    f"the same percentages of the range {scale.low:g} to {scale.high:g} ({scale.point:.3f} per "
                    "point).\n\n")

@@ -189,3 +189,31 @@ def test_claim_1_without_a_message_free_learner_is_not_applicable():
     rows = paper_claims.check_claims(scores, "table1", {}, [])
     assert verdicts(rows)["1. Proposed vs best message-free learner"] == "n/a"
     assert "no message-free learner" in rows[0]["measured"]
+
+
+def test_cells_and_ranges_are_checked_before_the_claims(tmp_path):
+    scores = synthetic_scores().rename(columns={"coverage": "return"})
+    scores.to_csv(tmp_path / "scores.csv", index=False)
+    spec = {"preset": "smoke", "overrides": {}, "eval_sets": [], "deterministic": False}
+    (tmp_path / "sweep.json").write_text(json.dumps(spec))
+
+    def run(*extra):
+        return subprocess.run([sys.executable, "examples/paper_claims.py", "--sweep", str(tmp_path), *extra],
+                              cwd=ROOT, capture_output=True, text=True, timeout=120)
+
+    for extra, message in (([], "--metric return --metric-range"),  # an adapted env's sweep has no coverage
+                           (["--metric", "return", "--metric-range", "0", "100", "--burst-cells", "table1"],
+                            "CELL=MEAN_OUTAGE_STEPS"),
+                           (["--metric", "return", "--metric-range", "0", "100", "--base-cell", "nope"], "unknown cell"),
+                           (["--metric", "return", "--metric-range", "0", "100", "--burst-cells", "foo=5"], "foo")):
+        result = run(*extra)
+        assert result.returncode == 2 and message in result.stderr, (extra, result.stderr)
+    result = run("--metric", "return", "--metric-range", "0", "50", "--actions", "sampled")  # scores reach 91
+    assert result.returncode == 0, result.stderr
+    assert "lie outside the stated range 0 to 50" in (tmp_path / "claims.md").read_text()
+    assert (tmp_path / "claim_1_message_free_learners.png").exists()  # no_comm beside proposed
+    scores.query("variant == 'proposed'").to_csv(tmp_path / "scores.csv", index=False)
+    (tmp_path / "claim_1_message_free_learners.png").unlink()
+    assert run("--metric", "return", "--metric-range", "0", "100", "--actions", "sampled").returncode == 0
+    assert not (tmp_path / "claim_1_message_free_learners.png").exists()  # claim 1 is n/a: no figure of it
+    assert "lie outside" not in (tmp_path / "claims.md").read_text()

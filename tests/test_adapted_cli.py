@@ -285,11 +285,17 @@ def test_a_sweep_trial_on_the_adapted_env_trains_evaluates_and_reports_its_metri
     assert spec.point_preset({}).env == SPREAD and spec.point_preset({}).config.n_agents == 3
     spec.save(tmp_path / "sweep.json")
     assert SweepSpec.load(tmp_path / "sweep.json") == spec  # the env round-trips through sweep.json
+    reports = []
     for trial in plan_trials(spec, commit="test"):
-        record = train_and_evaluate(trial, tmp_path / "trials" / trial["trial_id"])
+        record = train_and_evaluate(trial, tmp_path / "trials" / trial["trial_id"], report=reports.append)
         assert record["env"] == SPREAD.to_dict() and record["eval_coverage"] is None
+    # Ray's status table gets the adapted env's progress only: no NaN coverage or collisions columns
+    assert reports and all(set(r) == {"agent_steps", "episode_reward"} for r in reports)
     episodes = pd.read_csv(tmp_path / "trials" / "zero_substitute-seed0" / "episodes.csv")
     assert {"return", "final_landmarks_covered", "sum_collisions"} <= set(episodes.columns)
+    # outage links have no range: full_comm_in_range would repeat full_comm, so table1 leaves it out
+    table1 = set(episodes.query("eval_set == 'table1'")["condition"])
+    assert "full_comm" in table1 and "full_comm_in_range" not in table1
     assert sorted(episodes["seed"].unique()) == [1_000_000, 1_000_001]
     aggregate = write_report(tmp_path)
     assert {"return", "final_landmarks_covered", "sum_collisions"} <= set(aggregate["metric"])

@@ -89,6 +89,15 @@ def all_conditions() -> tuple[str, ...]:
     return evaluation.CONDITIONS + evaluation.EXTRA_CONDITIONS
 
 
+def default_conditions(config: SwarmConfig) -> tuple[str, ...]:
+    """The conditions of a cell that names none: :func:`all_conditions`, without ``full_comm_in_range`` where the
+    link model has no range (``link_model="outage"``: every link is "in range", so the row would repeat
+    ``full_comm``'s)."""
+    if config.link_model == "outage":
+        return tuple(name for name in all_conditions() if name != "full_comm_in_range")
+    return all_conditions()
+
+
 def default_eval_sets(preset: Preset) -> list[EvalSet]:
     """Table I: every condition (:func:`all_conditions`) at the preset's p_f (``table1``), and the proposed condition at
     each p_f of the preset's sweep (``p_fail=0``, ``p_fail=0.05``, ...)."""
@@ -150,9 +159,12 @@ class TuneProgress(BaseCallback):
     :param report: called with the metrics dict (``ray.tune.report`` in a sweep)
     """
 
-    def __init__(self, report: Callable[[dict[str, float]], None] | None = None):
+    def __init__(self, report: Callable[[dict[str, float]], None] | None = None, swarm_metrics: bool = True):
         super().__init__()
         self.report = report
+        self.swarm_metrics = swarm_metrics
+        """Whether ``report`` gets coverage and collisions (the swarm env's); an adapted env has neither, so its rows
+        keep them as NaN and the report (Ray Tune's status table) leaves them out."""
         self.rows: list[dict[str, float]] = []
         self._summaries: list[dict[str, Any]] = []
 
@@ -172,7 +184,7 @@ class TuneProgress(BaseCallback):
         self._summaries.clear()
         self.rows.append(row)
         if self.report is not None:
-            self.report(row)
+            self.report(row if self.swarm_metrics else {k: row[k] for k in ("agent_steps", "episode_reward")})
 
 
 def evaluate_sets(
@@ -190,13 +202,14 @@ def evaluate_sets(
     the rows of :func:`~sb3_latentswarm.evaluation.adapted.evaluate_adapted_conditions` (the env's own metrics)."""
     frames = []
     for eval_set in eval_sets:
-        conditions = conditions_for(variant, eval_set.conditions or all_conditions())
+        cell_config = config.replace(**eval_set.overrides)
+        conditions = conditions_for(variant, eval_set.conditions or default_conditions(cell_config))
         if not conditions:
             continue
         if env is not None:
             from sb3_latentswarm.evaluation.adapted import evaluate_adapted_conditions
 
-            frame = evaluate_adapted_conditions(model, env, config.replace(**eval_set.overrides), conditions,
+            frame = evaluate_adapted_conditions(model, env, cell_config, conditions,
                                                 n_episodes=n_episodes, seed=eval_seed, deterministic=deterministic)
             frames.append(frame.assign(eval_set=eval_set.name))
             continue
@@ -206,7 +219,7 @@ def evaluate_sets(
             p_fail=None,  # the cell's config carries p_f (the trial's, or the set's override)
             n_episodes=n_episodes,
             seed=eval_seed,
-            config=config.replace(**eval_set.overrides),
+            config=cell_config,
             deterministic=deterministic,
         )
         frames.append(frame.assign(eval_set=eval_set.name))
@@ -325,7 +338,7 @@ def train_and_evaluate(
     train_preset = dataclasses.replace(
         preset, config=training_config(variant, preset), algo_kwargs=variant_algo_kwargs(variant, preset.algo_kwargs)
     )
-    progress = TuneProgress(report)
+    progress = TuneProgress(report, swarm_metrics=spec.env is None)
     output = Path(output)
     identity = _trial_identity(trial)
     earlier_dir = Path(spec.warm_start) / "trials" / trial["trial_id"] if spec.warm_start is not None else None

@@ -32,7 +32,7 @@ learner's of an earlier check): claim 1 >= 10 %, claim 2 within 1.5 %, claim 3 >
 steps-to-90 % criterion of claim 1 exists only for coverage, and claim 5 reports the collisions (``collisions``, else
 ``sum_collisions``) without a target: the paper's 8.7 is a figure of its own task.
 
-    python examples/paper_claims.py --sweep docs/results/simple_spread_ge_pilot --actions sampled \
+    python examples/paper_claims.py --sweep docs/results/simple_spread_ge_pilot --actions sampled \\
         --metric return --metric-range -34.4 -25.8 --burst-cells table1=5 pf0.9=10
 """
 
@@ -96,13 +96,19 @@ class Scale(NamedTuple):
     high: float = 100.0
 
     @property
+    def coverage(self) -> bool:
+        """Whether the claims read the paper's own metric on its own scale (coverage, 0-100 %): then the steps-to-90 %
+        criterion and the paper's collision figure apply."""
+        return self.metric == "coverage" and (self.low, self.high) == (0.0, 100.0)
+
+    @property
     def point(self) -> float:
         """One of the paper's coverage points in the metric's units: ``(high - low) / 100``."""
         return (self.high - self.low) / 100.0
 
     def target(self, points: float) -> str:
         """A threshold of ``points`` coverage points, as the target column states it."""
-        if self.metric == "coverage" and (self.low, self.high) == (0.0, 100.0):
+        if self.coverage:
             return f"{points:g} points"
         return f"{points:g} % of the range ({points * self.point:.2f})"
 
@@ -180,7 +186,7 @@ def check_claims(
         steps_b = cells.get(best_name, base_cell, own_setting[best_name], "steps_to_90")
         faster = (steps_p is not None and steps_b is not None and steps_p["mean"] <= 0.8 * steps_b["mean"]
                   and steps_p["mean_high"] < steps_b["mean_low"])
-        if scale.metric != "coverage":
+        if not scale.coverage:
             steps_text, target = "", f">= {scale.target(10)}, disjoint 95 % CIs"
         else:
             steps_text = (f"; steps to 90 %: {_interval(steps_p)} vs {_interval(steps_b)}"
@@ -223,7 +229,7 @@ def check_claims(
     # 5. Collisions: the paper's figure is a target only on its own task
     collisions = cells.get("proposed", base_cell, "proposed", cells.collisions)
     if collisions is not None:
-        if scale.metric == "coverage":
+        if scale.coverage:
             row("5. collisions per episode (Proposed)", f"<= {PAPER_COLLISIONS} (the paper's)", _interval(collisions),
                 bool(collisions["mean"] <= PAPER_COLLISIONS))
         else:
@@ -344,7 +350,7 @@ def claim_figures(
             + cell("hold_last learner", "hold_last", base_cell, "proposed"),
             title="Claim 5: collisions per episode",
             metric=table.collisions,
-            reference=(PAPER_COLLISIONS, f"paper: {PAPER_COLLISIONS}") if scale.metric == "coverage" else None,
+            reference=(PAPER_COLLISIONS, f"paper: {PAPER_COLLISIONS}") if scale.coverage else None,
         ),
     }
     paths = []
@@ -421,7 +427,7 @@ def main(argv: list[str] | None = None) -> None:
     header = (f"Claims on sweep `{sweep}`{joined} (preset `{spec['preset']}`, overrides {spec['overrides']}; training seeds "
               f"per variant: {seeds_per_variant}). Means across training seeds with 95 % stratified-bootstrap "
               "intervals.\n\n")
-    if scale != COVERAGE:
+    if not scale.coverage:
         outside = outside_range(first_scores, scale)
         if outside:
             header += (f"**Note:** {outside}; the range should come from the same setting (env, N, budget) as this "

@@ -53,8 +53,10 @@ class Preset:
         The config takes the env's number of agents and, until a ``--set`` changes it, Bernoulli outages
         (``link_model="outage"``, at the preset's ``p_fail``): the A2A channel of Eq. (1) is in metres, which another
         env's positions need not be. An env whose actions are not in [-1, 1] (MPE2: [0, 1]) gets the paper's Gaussian
-        actor (``action_distribution="gaussian"``; the CPU presets' squashed Gaussian gives [-1, 1] only). Builds one
-        env copy to read its agents and action space.
+        actor (``action_distribution="gaussian"``, clipped to the box as SB3's PPO clips), SB3's default for such a
+        box; ``--set action_distribution=squashed_gaussian`` (applied after this) gives the CPU presets' squashed
+        Gaussian rescaled to the box instead (:meth:`LatentSwarmPolicy.env_actions
+        <sb3_latentswarm.LatentSwarmPolicy.env_actions>`). Builds one env copy to read its agents and action space.
 
         :param keep_links: keep the config's ``link_model`` (a saved run's config) instead of Bernoulli outages
 

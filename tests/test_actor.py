@@ -127,11 +127,34 @@ def test_bad_actor_options_raise_naming_the_field(policy_kwargs, match):
         make_model(**policy_kwargs)
 
 
-def test_squashed_gaussian_needs_the_unit_box():
+def test_squashed_gaussian_needs_a_bounded_box():
     env = make_vec_env(1, config=SMALL, seed=0)
-    wide = spaces.Box(-2.0, 2.0, (4,), np.float32)
-    with pytest.raises(ValueError, match=r"squashed_gaussian.*\[-1, 1\]"):
-        LatentSwarmPolicy(env.observation_space, wide, lambda _: 3e-4, action_distribution="squashed_gaussian", **TINY_POLICY)
+    unbounded = spaces.Box(np.array([-1, -1, 0, -np.inf], np.float32), np.array([1, 1, 1, np.inf], np.float32))
+    with pytest.raises(ValueError, match=r"squashed_gaussian.*finite bounds.*gaussian"):
+        LatentSwarmPolicy(env.observation_space, unbounded, lambda _: 3e-4, action_distribution="squashed_gaussian",
+                          **TINY_POLICY)
+    policy = LatentSwarmPolicy(env.observation_space, unbounded, lambda _: 3e-4, **TINY_POLICY)  # the Gaussian clips
+    actions = th.tensor([[-3.0, 0.5, 2.0, -7.0]])
+    assert th.equal(policy.env_actions(actions), th.tensor([[-1.0, 0.5, 1.0, -7.0]]))
+
+
+def test_squashed_actions_are_rescaled_to_any_box_and_gaussian_ones_clipped():
+    """SB3's unscale_action: a in [-1, 1] maps linearly onto [low, high]; the [-1, 1] box keeps a as it is."""
+    env = make_vec_env(1, config=SMALL, seed=0)
+    box = spaces.Box(np.array([-0.5, 0.0, -1.0, 0.2], np.float32), np.array([1.0, 0.5, 1.0, 0.9], np.float32))
+    squashed = LatentSwarmPolicy(env.observation_space, box, lambda _: 3e-4, action_distribution="squashed_gaussian",
+                                 **TINY_POLICY)
+    gaussian = LatentSwarmPolicy(env.observation_space, box, lambda _: 3e-4, **TINY_POLICY)
+    corners = th.tensor([[-1.0] * 4, [0.0] * 4, [1.0] * 4])
+    expected = th.tensor([[-0.5, 0.0, -1.0, 0.2], [0.25, 0.25, 0.0, 0.55], [1.0, 0.5, 1.0, 0.9]])
+    assert squashed.rescale_actions and not gaussian.rescale_actions
+    th.testing.assert_close(squashed.env_actions(corners), expected)
+    assert th.equal(gaussian.env_actions(corners), th.tensor([[-0.5, 0.0, -1.0, 0.2], [0.0, 0.0, 0.0, 0.2],
+                                                              [1.0, 0.5, 1.0, 0.9]]))
+    assert "action_low" not in squashed.state_dict()  # the bounds come from the saved space, not the weights
+    unit = make_model(action_distribution="squashed_gaussian").policy
+    tanh_actions = th.tanh(th.randn(16, 4, generator=th.Generator().manual_seed(2)) * 3)
+    assert not unit.rescale_actions and th.equal(unit.env_actions(tanh_actions), tanh_actions)
 
 
 # ---------------------------------------------------------------------------------------------- the squashed Gaussian

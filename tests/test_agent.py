@@ -272,3 +272,36 @@ def test_the_onnx_runtime_does_not_import_torch(model, tmp_path):
     env = {**os.environ, "PYTHONPATH": str(root)}
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
     assert result.returncode == 0, result.stderr
+
+
+def test_squashed_actor_on_another_box_flies_the_same_in_onnx_and_torch(tmp_path):
+    """The squashed Gaussian rescaled to a box other than [-1, 1] (LatentSwarmPolicy.env_actions): the exported graph
+    and the torch agent act alike, inside the box, and the torch agent's action is the policy's own mapping."""
+    pytest.importorskip("onnxruntime")
+    from gymnasium import spaces
+
+    from sb3_latentswarm import LatentSwarmPolicy
+    from sb3_latentswarm.agent import OnnxSwarmAgent, export_onnx
+
+    env = make_vec_env(1, config=CONFIG, seed=0)
+    low, high = np.array([-0.5, 0.0, -1.0, 0.2], np.float32), np.array([1.0, 0.5, 1.0, 0.9], np.float32)
+    policy = LatentSwarmPolicy(env.observation_space, spaces.Box(low, high), lambda _: 3e-4,
+                               action_distribution="squashed_gaussian", **TINY_POLICY)
+    path = tmp_path / "squashed.onnx"
+    assert export_onnx(policy, path).max_abs_error <= ONNX_ATOL
+    onnx_agents = [OnnxSwarmAgent(path) for _ in range(CONFIG.n_agents)]
+    torch_agents = [LatentSwarmAgent(policy) for _ in range(CONFIG.n_agents)]
+    largest, steps = fly_pair(onnx_agents, torch_agents, CONFIG, HELD_OUT_SEED + 12)
+    assert steps == CONFIG.max_steps and largest < ONNX_ATOL
+    # the same weights on the [-1, 1] box give tanh's a itself: the box only rescales it
+    unit = LatentSwarmPolicy(env.observation_space, env.action_space, lambda _: 3e-4,
+                             action_distribution="squashed_gaussian", **TINY_POLICY)
+    unit.load_state_dict(policy.state_dict())
+    observation = {"local_obs": np.zeros(25, np.float32), "proprio": np.zeros(8, np.float32)}
+    noise = np.random.default_rng(3).standard_normal(4).astype(np.float32) * 3
+    actions = []
+    for agent in (LatentSwarmAgent(policy), LatentSwarmAgent(unit)):
+        agent.reset()
+        actions.append(agent.step(observation, np.zeros((0, agent.message_dim), np.float32), noise=noise))
+    assert np.all(low <= actions[0]) and np.all(actions[0] <= high) and np.abs(actions[1]).max() <= 1.0
+    np.testing.assert_allclose(actions[0], low + (actions[1] + 1) * (high - low) / 2, atol=1e-6)

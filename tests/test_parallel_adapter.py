@@ -32,9 +32,9 @@ LINK_SPECS = {
 def small_model(env, **kwargs):
     n_agents = env.get_attr("n_agents", indices=0)[0]
     episode = kwargs.pop("episode", 20)
+    kwargs.setdefault("policy_kwargs", SMALL_POLICY)
     return LatentSwarmPPO("LatentSwarmPolicy", env, n_steps=episode, chunk_length=episode, n_epochs=2,
-                          batch_size=episode * n_agents * env.num_envs // n_agents, policy_kwargs=SMALL_POLICY, seed=0,
-                          **kwargs)
+                          batch_size=episode * n_agents * env.num_envs // n_agents, seed=0, **kwargs)
 
 
 def simple_spread(continuous_actions=True, **kwargs):
@@ -178,6 +178,26 @@ def test_latent_ppo_trains_on_mpe2_simple_spread(link):
         seed=seed), n_episodes=3, seed=100)
     assert 0.0 <= results["final_landmarks_covered"] <= 1.0 and results["sum_collisions"] >= 0
     assert results["length"] == 10 and np.isfinite(results["return"])
+
+
+def test_squashed_actor_on_simple_spread_acts_in_its_0_1_box():
+    """The opt-in squashed Gaussian on MPE2's [0, 1] actions: the buffer keeps tanh's a in [-1, 1], the env and
+    ``predict`` get (a + 1) / 2."""
+    env = make_adapted_vec_env(simple_spread, 2, link_model=LINK_SPECS["gilbert_elliott"], position_fn=mpe_positions,
+                               metrics_fn=simple_spread_metrics, seed=0)
+    model = small_model(env, episode=10, policy_kwargs={**SMALL_POLICY, "action_distribution": "squashed_gaussian"})
+    model.learn(2 * 10 * 6, log_interval=10**6)
+    buffer = model.rollout_buffer
+    assert np.abs(buffer.actions).max() <= 1.0 and buffer.actions.min() < 0.0  # tanh's a, not the env's action
+    assert model.logger.name_to_value["rollout/actions_in_box"] == 1.0
+    obs = env.reset()
+    actions, _ = model.predict(obs, deterministic=True)
+    with th.no_grad():
+        step = model.policy.latent_step({k: th.as_tensor(v) for k, v in obs.items() if k in model.policy.layout.actor_keys},
+                                        model.policy.initial_state(len(actions)), th.ones(len(actions)))
+        mean = th.tanh(model.policy.action_distribution(step.state.task_state).distribution.mean)
+    np.testing.assert_allclose(actions, (mean.numpy() + 1.0) / 2.0, atol=1e-6)
+    assert 0.0 <= actions.min() and actions.max() <= 1.0
 
 
 def test_simple_spread_metrics_on_a_hand_placed_world():

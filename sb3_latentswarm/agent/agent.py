@@ -116,7 +116,8 @@ class LatentSwarmAgent:
             received message is, (k,) in [0, E], in the order of ``received_messages`` (each message as its peer sent
             it, z_{t-1-a}); ``None``: all on time. The step reads their mean divided by E (``docs/concepts.md``,
             "Delayed messages")
-        :return: the action, float32, (action_dim,), clipped to the action space (normalized commands in [-1, 1]);
+        :return: the action, float32, (action_dim,), inside the action space (normalized commands in [-1, 1] on the
+            swarm env; :meth:`LatentSwarmPolicy.env_actions <sb3_latentswarm.LatentSwarmPolicy.env_actions>`);
             with ``return_info``: ``(action, info)``
         :raise RuntimeError: before the first :meth:`reset`
         :raise TypeError: for an observation that is not a mapping or arrays that do not hold numbers
@@ -142,9 +143,9 @@ class LatentSwarmAgent:
             )
             out = policy.agent_step(inputs, state)
             noise_tensor = None if arrays.noise is None else th.as_tensor(arrays.noise, device=device).unsqueeze(0)
-            action = policy.actions_from_noise(out.state.task_state, noise_tensor).squeeze(0).cpu().numpy()
+            action = policy.actions_from_noise(out.state.task_state, noise_tensor)
+            action = policy.env_actions(action).squeeze(0).cpu().numpy().astype(np.float32)
         self._state = out.state
-        action = np.clip(action, self.spec.action_low, self.spec.action_high).astype(np.float32)
         if not return_info:
             return action
         info = AgentStepInfo(

@@ -17,9 +17,10 @@ Inputs (batch dim B: one UAV, or several stepped together; float32 unless noted)
 ``noise``              (B, action_dim)     eps ~ N(0, I); zeros give the mean action
 =====================  ==================  ===============================================================
 
-Outputs: ``action`` (B, action_dim) clipped to the action space, the next state (``next_map_state``, ...,
-``next_held_message``, in the order above), ``message`` (B, d), z_t = [mu_t; tau_t], what the UAV broadcasts for
-step t + 1, and ``predicted_message`` (B, d), mhat_t (Sec. III-C). All zeros is the state at an episode start.
+Outputs: ``action`` (B, action_dim) inside the action space (``LatentSwarmPolicy.env_actions``), the next state
+(``next_map_state``, ..., ``next_held_message``, in the order above), ``message`` (B, d), z_t = [mu_t; tau_t], what
+the UAV broadcasts for step t + 1, and ``predicted_message`` (B, d), mhat_t (Sec. III-C). All zeros is the state at an
+episode start.
 
 A delay-aware policy (``delay_aware=True``, an extension; ``docs/concepts.md``, "Delayed messages") is exported in
 format 2: one more state, ``prev_message_age`` (B, 1), alpha_{t-1} (after ``held_message``; output
@@ -86,16 +87,12 @@ class AgentStep(nn.Module):
         super().__init__()
         self.policy = policy
         self.state_names, self.input_names, self.output_names = onnx_io_names(policy.delay_aware)
-        spec = agent_spec(policy)
-        self.action_low = th.tensor(spec.action_low, dtype=th.float32)  # constants of the graph
-        self.action_high = th.tensor(spec.action_high, dtype=th.float32)
 
     def forward(self, *tensors: th.Tensor) -> tuple[th.Tensor, ...]:
         named = dict(zip(self.input_names, tensors))
         state = _latent_state(tensors[: len(self.state_names)])
         out = agent_update(self.policy, _agent_inputs(named), state, _GraphLinears(self.policy))
-        action = self.policy.actions_from_noise(out.state.task_state, named["noise"])
-        action = th.minimum(th.maximum(action, self.action_low), self.action_high)
+        action = self.policy.env_actions(self.policy.actions_from_noise(out.state.task_state, named["noise"]))
         exported = [getattr(out.state, name) for name in self.state_names]
         return (action, *exported, outgoing_message(out.state), out.predicted_message)
 
@@ -266,6 +263,5 @@ def _own_step_action(policy: LatentSwarmPolicy, inputs: tuple[np.ndarray, ...]) 
     state = _latent_state([named[name] for name in state_names])
     with th.no_grad():
         out = policy.agent_step(_agent_inputs(named), state)
-        action = policy.actions_from_noise(out.state.task_state, named["noise"])
-    low, high = (np.asarray(bound, dtype=np.float32) for bound in (policy.action_space.low, policy.action_space.high))
-    return np.clip(action.numpy(), low, high)
+        action = policy.env_actions(policy.actions_from_noise(out.state.task_state, named["noise"]))
+    return action.numpy()

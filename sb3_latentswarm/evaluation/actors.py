@@ -71,7 +71,7 @@ class LatentActor:
             else:
                 pred_error = th.full_like(map_error, math.nan)
         return (
-            np.clip(actions.cpu().numpy(), -1.0, 1.0),
+            policy.env_actions(actions).cpu().numpy(),
             map_error.cpu().numpy().astype(np.float64),
             pred_error.cpu().numpy().astype(np.float64),
         )

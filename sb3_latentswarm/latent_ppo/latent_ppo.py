@@ -523,9 +523,10 @@ class LatentSwarmPPO(RecurrentPPO):
                 obs_tensor = obs_as_tensor(self._last_obs, self.device)
                 episode_starts = th.as_tensor(self._last_episode_starts, dtype=th.float32, device=self.device)
                 actions, values, log_probs, new_latent_state = self.policy(obs_tensor, latent_state, episode_starts)
+            # what the env takes (clipped, or the squashed actor's a rescaled to the box); the buffer keeps the actor's
+            clipped_actions = self.policy.env_actions(actions).cpu().numpy()
             actions = actions.cpu().numpy()
-            clipped_actions = np.clip(actions, self.action_space.low, self.action_space.high)  # type: ignore[attr-defined]
-            in_box_sum += float((clipped_actions == actions).mean())
+            in_box_sum += 1.0 if self.policy.rescale_actions else float((clipped_actions == actions).mean())
 
             # link statistics of the observation the agents just acted on (vectorized over slots)
             link_row = self._last_obs["link_row"]

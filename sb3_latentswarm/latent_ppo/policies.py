@@ -133,8 +133,10 @@ class LatentSwarmPolicy(BasePolicy):
         ``"tanh"``
     :param action_distribution: ``"gaussian"``: the paper's diagonal Gaussian (actions outside the box are clipped by
         the env); ``"squashed_gaussian"``: a = tanh(u), u Gaussian (:class:`TanhSquashedGaussianDistribution`), every
-        action inside the [-1, 1] box, the mean action is tanh(mean). Its entropy has no closed form: the PPO entropy
-        bonus uses a one-sample estimate (:meth:`action_entropy`). Needs a Box action space bounded by [-1, 1]
+        action inside the [-1, 1] box, the mean action is tanh(mean), rescaled linearly to the env's box when it is
+        not [-1, 1] (:meth:`env_actions`, as SB3's ``unscale_action``; the rollout buffer keeps a in [-1, 1]). Its
+        entropy has no closed form: the PPO entropy bonus uses a one-sample estimate (:meth:`action_entropy`). Needs a
+        Box action space with finite bounds
     :param state_dependent_std: ``True``: the log std is a linear head on tau_t like the mean (the paper's pi(a | tau));
         ``False``: one learned log std per action dimension, as SB3's default Gaussian policy
     :param normalize_value: the critic learns normalized returns (MAPPO's ValueNorm); :meth:`predict_values` returns
@@ -200,9 +202,10 @@ class LatentSwarmPolicy(BasePolicy):
         check_choice("log_std_mapping", log_std_mapping, LOG_STD_MAPPINGS)
         check_choice("action_distribution", action_distribution, ACTION_DISTRIBUTIONS)
         squashed = action_distribution == "squashed_gaussian"
-        if squashed and not (np.all(action_space.low == -1.0) and np.all(action_space.high == 1.0)):
+        if squashed and not (np.all(np.isfinite(action_space.low)) and np.all(np.isfinite(action_space.high))):
             raise ValueError(
-                f"action_distribution='squashed_gaussian' produces actions in [-1, 1]; the action space is {action_space}"
+                "action_distribution='squashed_gaussian' rescales tanh's [-1, 1] to the action box, which needs finite "
+                f"bounds; the action space is {action_space} (use action_distribution='gaussian')"
             )
         if optimizer_kwargs is None:
             optimizer_kwargs = {"eps": 1e-5}
@@ -233,6 +236,12 @@ class LatentSwarmPolicy(BasePolicy):
         self.log_std_bounds = check_log_std_bounds(log_std_bounds)
         self.log_std_mapping = log_std_mapping
         self.action_distribution_name = action_distribution
+        # the env's box, for env_actions: buffers follow the policy's device, and are not saved (the space is)
+        self.register_buffer("action_low", th.as_tensor(action_space.low, dtype=th.float32), persistent=False)
+        self.register_buffer("action_high", th.as_tensor(action_space.high, dtype=th.float32), persistent=False)
+        unit_box = bool(np.all(action_space.low == -1.0) and np.all(action_space.high == 1.0))
+        self.rescale_actions = squashed and not unit_box
+        """Whether :meth:`env_actions` rescales (a squashed actor on a box other than [-1, 1]) rather than clips."""
         low, high = self.log_std_bounds
         if log_std_mapping == "tanh":
             check_float(f"log_std_init (log_std_mapping='tanh', log_std_bounds {self.log_std_bounds})", log_std_init,
@@ -502,6 +511,21 @@ class LatentSwarmPolicy(BasePolicy):
             actions = actions + gaussian.stddev * eps
         return th.tanh(actions) if self.squash_output else actions
 
+    def env_actions(self, actions: th.Tensor) -> th.Tensor:
+        """The actions the env takes for the actor's ``actions``: the one place that maps them to the action box.
+
+        Gaussian actor: clipped to the box, as SB3's PPO clips. Squashed Gaussian on a box other than [-1, 1]
+        (:attr:`rescale_actions`): a in [-1, 1] rescaled linearly to [low, high], low + (a + 1) (high - low) / 2, as
+        SB3's ``unscale_action``; on the [-1, 1] box (the paper's swarm env) the clip, which leaves tanh's a as it is.
+
+        :param actions: (B, action_dim), from :meth:`forward`, :meth:`actions_from_noise` or a distribution
+        :return: (B, action_dim), inside the action space, in ``actions``' dtype (or float32 if narrower)
+        """
+        low, high = self.action_low, self.action_high
+        if self.rescale_actions:
+            return low + (actions + 1.0) * (0.5 * (high - low))
+        return th.minimum(th.maximum(actions, low), high)
+
     @staticmethod
     def action_entropy(distribution: DiagGaussianDistribution) -> th.Tensor:
         """The entropy of each row of ``distribution``, (B,): exact for the Gaussian; for the squashed Gaussian, which
@@ -684,7 +708,7 @@ class LatentSwarmPolicy(BasePolicy):
         with th.no_grad():
             step = self.latent_step(obs_tensor, latent, starts)
             actions = self.action_distribution(step.state.task_state).get_actions(deterministic=deterministic)
-        actions_np = np.clip(actions.cpu().numpy(), self.action_space.low, self.action_space.high)
+        actions_np = self.env_actions(actions).cpu().numpy()
         # a LatentState holding numpy arrays (its fields are annotated as tensors)
         new_state = cast("tuple[np.ndarray, ...]", LatentState._make(field.cpu().numpy() for field in step.state))
         if agent_names is not None:

@@ -47,3 +47,24 @@ def test_fewer_seeds_than_the_minimum_give_no_verdict(tmp_path, capsys):
                     "--min-seeds", "4"])
     row = capsys.readouterr().out.splitlines()[2]
     assert "+5.00" in row and row.endswith("| no verdict (< 4 seeds) |")
+
+
+def test_a_learner_swept_apart_is_read_at_its_own_condition(tmp_path, capsys):
+    module = runpy.run_path(str(SCRIPT))
+    apart = tmp_path / "apart"
+    apart.mkdir()
+    rows = []  # the learner trained without links: 80, 81, 82 in its own condition, nonsense (0) with links up
+    for seed, value in enumerate((80.0, 81.0, 82.0)):
+        for condition, score in (("no_comm", value), ("proposed", 0.0)):
+            rows.append({"eval_set": "table1", "condition": condition, "variant": "no_comm", "train_seed": seed,
+                         "coverage": score})
+    pd.DataFrame(rows).to_csv(apart / "scores.csv", index=False)
+    module["main"](["--scores", str(_scores(tmp_path)), str(apart / "scores.csv"), "--against", "no_comm",
+                    "--against-condition", "no_comm", "--cells", "table1", "--threshold", "10"])
+    row = capsys.readouterr().out.splitlines()[2]
+    # proposed 90, 92, 94 (condition proposed) against 80, 81, 82 (condition no_comm): +11 on average
+    assert "| 3 (0,1,2) | 92.00 | 81.00 | +11.00 [+10." in row and row.endswith("| met |")
+    # without --against-condition both are read at `proposed`: the no_comm learner's 0s
+    module["main"](["--scores", str(_scores(tmp_path)), str(apart / "scores.csv"), "--against", "no_comm",
+                    "--cells", "table1", "--threshold", "10"])
+    assert "| 92.00 | 0.00 | +92.00" in capsys.readouterr().out

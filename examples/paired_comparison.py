@@ -43,7 +43,7 @@ class Args:
     condition: str = "proposed"
     """The test-time condition of the reference's rows (``proposed``: each learner with its own substitute)."""
     against_condition: str | None = None
-    """The test-time condition of the other learners' rows (``None``: :attr:`condition`)."""
+    """The test-time condition of every other learner's rows (``None``: :attr:`condition`)."""
     metric: str = "coverage"
     """The score column (coverage in %, so the threshold is in points)."""
     threshold: float = 3.0
@@ -55,7 +55,7 @@ class Args:
 
 
 def parse_args(argv: list[str] | None = None) -> Args:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scores", type=Path, nargs="+", required=True,
                         help="a sweep's scores.csv; more files (learners swept apart) are read as one table")
     parser.add_argument("--reference", default="proposed", help="the learner whose lead is tested (default proposed)")
@@ -64,8 +64,8 @@ def parse_args(argv: list[str] | None = None) -> Args:
     parser.add_argument("--condition", default="proposed",
                         help="test-time condition of the reference's rows (default proposed)")
     parser.add_argument("--against-condition", default=None, metavar="CONDITION",
-                        help="test-time condition of the other learners' rows (default: --condition's), e.g. no_comm "
-                             "for the learner trained without links")
+                        help="test-time condition of every --against learner's rows (default: --condition's), e.g. "
+                             "no_comm for the learner trained without links")
     parser.add_argument("--metric", default="coverage", help="score column (default coverage, in %%)")
     parser.add_argument("--threshold", type=float, default=3.0, help="points the mean difference must reach (3)")
     parser.add_argument("--output", type=Path, default=None, help="write the markdown table here")
@@ -76,25 +76,57 @@ def parse_args(argv: list[str] | None = None) -> Args:
             parser.error(f"--scores: {path} is not a file")
     if ns.min_seeds < 2:
         parser.error(f"--min-seeds must be >= 2, got {ns.min_seeds}")
+    if ns.output is not None and not ns.output.parent.is_dir():
+        parser.error(f"--output: the folder {ns.output.parent} does not exist")
     return Args(tuple(ns.scores), ns.reference, tuple(ns.against), tuple(ns.cells), ns.condition,
                 ns.against_condition, ns.metric, ns.threshold, ns.output, ns.min_seeds)
 
 
-def paired_table(args: Args) -> str:
-    """The verdict table as markdown: one row per (other learner, cell)."""
+def load_scores(args: Args):
+    """The rows of every ``--scores`` file as one table, checked against the arguments.
+
+    :raise ValueError: a file lacks a column; a (cell, condition, learner, seed) row comes twice (the same trial in two
+        files, or files of different cells read as one); a learner, cell or condition named that no file has
+    """
     import pandas as pd
 
-    from sb3_latentswarm.experiments.aggregate import mean, stratified_bootstrap_ci
-
-    against_condition = args.condition if args.against_condition is None else args.against_condition
     frames = []
     for path in args.scores:
         frame = pd.read_csv(path)
         missing = {"eval_set", "condition", "variant", "train_seed", args.metric} - set(frame.columns)
         if missing:
-            raise ValueError(f"{path} lacks the column(s) {sorted(missing)}")
-        frames.append(frame)
+            raise ValueError(f"{path} lacks the column(s) {sorted(missing)}; it has {', '.join(frame.columns)}")
+        frames.append(frame.assign(_file=str(path)))
     scores = pd.concat(frames, ignore_index=True)
+    key = ["eval_set", "condition", "variant", "train_seed"]
+    twice = scores[scores.duplicated(key, keep=False)]
+    if not twice.empty:
+        first = twice.iloc[0]
+        files = sorted(set(twice[(twice[key] == first[key]).all(axis=1)]["_file"]))
+        raise ValueError(
+            f"the row {dict(first[key])} comes more than once (in {', '.join(files)}): the files must hold different "
+            "learners of the same cells and evaluation episodes"
+        )
+    against_condition = args.condition if args.against_condition is None else args.against_condition
+    for what, names, have in (("learner", (args.reference, *args.against), scores["variant"]),
+                              ("cell", args.cells, scores["eval_set"]),
+                              ("condition", (args.condition, against_condition), scores["condition"])):
+        unknown = sorted(set(names) - set(have))
+        if unknown:
+            raise ValueError(f"no {what} {', '.join(map(repr, unknown))} in the scores; they have "
+                             f"{', '.join(map(str, sorted(set(have))))}")
+    return scores
+
+
+def paired_table(args: Args) -> str:
+    """The verdict table as markdown: one row per (other learner, cell).
+
+    :raise ValueError: see :func:`load_scores`
+    """
+    from sb3_latentswarm.experiments.aggregate import mean, stratified_bootstrap_ci
+
+    scores = load_scores(args)
+    against_condition = args.condition if args.against_condition is None else args.against_condition
     reference, other_name = args.reference, "other"
     if against_condition != args.condition:  # say which condition each side was read at
         reference, other_name = f"{reference} ({args.condition})", f"other ({against_condition})"
@@ -102,37 +134,38 @@ def paired_table(args: Args) -> str:
         f"| vs | cell | seeds | {reference} | {other_name} | mean difference [95 % CI] | >= {args.threshold:g} and CI > 0 |",
         "|---|---|---|---|---|---|---|",
     ]
+
+    def by_seed(cell: str, variant: str, condition: str):
+        part = scores[(scores["eval_set"] == cell) & (scores["variant"] == variant) & (scores["condition"] == condition)]
+        return part.set_index("train_seed")[args.metric]
+
     for other in args.against:
         for cell in args.cells:
-            cell_rows = scores[scores["eval_set"] == cell]
-            part = pd.concat([  # the reference at its condition, the other learner at its own
-                cell_rows[(cell_rows["variant"] == args.reference) & (cell_rows["condition"] == args.condition)],
-                cell_rows[(cell_rows["variant"] == other) & (cell_rows["condition"] == against_condition)],
-            ])
-            by_seed = part.pivot_table(index="train_seed", columns="variant", values=args.metric)
-            if args.reference not in by_seed or other not in by_seed:
-                rows.append(f"| {other} | {cell} | 0 | n/a | n/a | no finished pair | not tested |")
-                continue
-            pairs = by_seed[[args.reference, other]].dropna()
+            # the reference at its condition, the other learner at its own (a learner may be compared with itself)
+            pairs = by_seed(cell, args.reference, args.condition).to_frame("reference").join(
+                by_seed(cell, other, against_condition).rename("other"), how="inner").dropna()
             if pairs.empty:
                 rows.append(f"| {other} | {cell} | 0 | n/a | n/a | no finished pair | not tested |")
                 continue
-            difference = (pairs[args.reference] - pairs[other]).to_numpy()
+            difference = (pairs["reference"] - pairs["other"]).to_numpy()
             point, low, high = stratified_bootstrap_ci(difference, mean)
             met = point >= args.threshold and low > 0.0
             too_few = len(pairs) < args.min_seeds
             verdict = f"no verdict (< {args.min_seeds} seeds)" if too_few else ("met" if met else "not met")
             seeds = ",".join(str(int(s)) for s in pairs.index)
             rows.append(
-                f"| {other} | {cell} | {len(pairs)} ({seeds}) | {pairs[args.reference].mean():.2f} | "
-                f"{pairs[other].mean():.2f} | {point:+.2f} [{low:+.2f}, {high:+.2f}] | {verdict} |"
+                f"| {other} | {cell} | {len(pairs)} ({seeds}) | {pairs['reference'].mean():.2f} | "
+                f"{pairs['other'].mean():.2f} | {point:+.2f} [{low:+.2f}, {high:+.2f}] | {verdict} |"
             )
     return "\n".join(rows) + "\n"
 
 
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
-    table = paired_table(args)
+    try:
+        table = paired_table(args)
+    except ValueError as error:
+        raise SystemExit(f"paired_comparison.py: error: {error}") from None
     print(table, end="")
     if args.output is not None:
         from sb3_latentswarm.utils.atomic import write_text

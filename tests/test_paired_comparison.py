@@ -6,6 +6,7 @@ import runpy
 from pathlib import Path
 
 import pandas as pd
+import pytest
 
 SCRIPT = Path(__file__).resolve().parents[1] / "examples" / "paired_comparison.py"
 
@@ -68,3 +69,35 @@ def test_a_learner_swept_apart_is_read_at_its_own_condition(tmp_path, capsys):
     module["main"](["--scores", str(_scores(tmp_path)), str(apart / "scores.csv"), "--against", "no_comm",
                     "--cells", "table1", "--threshold", "10"])
     assert "| 92.00 | 0.00 | +92.00" in capsys.readouterr().out
+
+
+def test_a_learner_compared_with_itself_at_another_condition(tmp_path, capsys):
+    module = runpy.run_path(str(SCRIPT))
+    module["main"](["--scores", str(_scores(tmp_path)), "--against", "proposed", "--against-condition", "no_comm",
+                    "--cells", "table1", "--threshold", "3"])
+    row = capsys.readouterr().out.splitlines()[2]  # proposed with links (90, 92, 94) against itself without (0s)
+    assert "| 3 (0,1,2) | 92.00 | 0.00 | +92.00" in row and row.endswith("| met |")
+
+
+def test_bad_scores_and_names_stop_with_one_clear_line(tmp_path):
+    module = runpy.run_path(str(SCRIPT))
+    scores = _scores(tmp_path)
+    copy = tmp_path / "copy"
+    copy.mkdir()
+    (copy / "scores.csv").write_text(scores.read_text())  # the same trials twice: averaging them would hide it
+    cases = [
+        (["--scores", str(scores), str(copy / "scores.csv"), "--against", "hold_last", "--cells", "table1"],
+         "comes more than once"),
+        (["--scores", str(scores), "--against", "hold_lats", "--cells", "table1"], "no learner 'hold_lats'.*hold_last"),
+        (["--scores", str(scores), "--against", "hold_last", "--cells", "tabel1"], "no cell 'tabel1'.*pf1, table1"),
+        (["--scores", str(scores), "--against", "hold_last", "--cells", "table1", "--against-condition", "nocomm"],
+         "no condition 'nocomm'"),
+        (["--scores", str(scores), "--against", "hold_last", "--cells", "table1", "--metric", "return"],
+         r"lacks the column\(s\) \['return'\]; it has eval_set, condition"),
+    ]
+    for argv, match in cases:
+        with pytest.raises(SystemExit, match=match):
+            module["main"](argv)
+    with pytest.raises(SystemExit):  # argparse: exit status 2 and the message on stderr
+        module["main"](["--scores", str(scores), "--against", "hold_last", "--cells", "table1", "--output",
+                        str(tmp_path / "missing" / "paired.md")])

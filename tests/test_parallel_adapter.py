@@ -241,3 +241,22 @@ def test_simple_spread_comm_check_runs_and_reports(tmp_path):
     report = (tmp_path / "run.md").read_text()
     assert "| links | 1 |" in report and "| no_links | 1 |" in report and "links ahead by >= 10 % of the range" in report
     assert sorted(p.name for p in (tmp_path / "per_run").iterdir()) == ["links_seed0.json", "no_links_seed0.json"]
+
+
+def test_unbounded_action_boxes_and_the_per_uav_agent_are_refused_clearly(tmp_path):
+    """SB3 needs a bounded action box: the adapter says so when the env is built. The per-UAV agent and its ONNX
+    export read the swarm env's layout: an adapted model gets a ValueError naming model.predict, before any work."""
+    from sb3_latentswarm.agent import LatentSwarmAgent, export_onnx
+
+    class Unbounded(Rendezvous):
+        def action_space(self, agent):
+            return spaces.Box(-np.inf, np.inf, (2,), np.float32)
+
+    with pytest.raises(ValueError, match=r"finite bounds.*agent 'agent_0' has Box\(-inf, inf"):
+        make_adapted_vec_env(Unbounded, 2, link_model=LINK_SPECS["bernoulli"])
+    model = small_model(make_adapted_vec_env(Rendezvous, 2, link_model=LINK_SPECS["bernoulli"],
+                                             position_fn=rendezvous_positions, seed=0))
+    for build in (lambda: LatentSwarmAgent(model), lambda: export_onnx(model, tmp_path / "never_written.onnx")):
+        with pytest.raises(ValueError, match=r"swarm env's observation layout.*model\.predict"):
+            build()
+    assert not list(tmp_path.iterdir())

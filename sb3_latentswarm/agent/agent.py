@@ -14,7 +14,7 @@ import numpy as np
 import torch as th
 
 from sb3_latentswarm.agent.inputs import AgentSpec, AgentStepInfo, check_step, pooled_message_age
-from sb3_latentswarm.envs.observations import PROPRIO_POSITION
+from sb3_latentswarm.envs.observations import PROPRIO_POSITION, SWARM_LAYOUT
 from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
 from sb3_latentswarm.latent_ppo.recurrence import AgentInputs, outgoing_message
 from sb3_latentswarm.latent_ppo.type_aliases import LatentState
@@ -34,7 +34,17 @@ def policy_of(model: Any) -> LatentSwarmPolicy:
 
 
 def agent_spec(policy: LatentSwarmPolicy) -> AgentSpec:
-    """The sizes of one UAV's step under ``policy``."""
+    """The sizes of one UAV's step under ``policy``.
+
+    :raise ValueError: for a policy trained on an adapted env (another observation layout than the swarm env's)
+    """
+    if policy.layout != SWARM_LAYOUT:
+        raise ValueError(
+            "The per-UAV agent, its ONNX export and the UAV processes take the swarm env's observation layout "
+            f"({', '.join(SWARM_LAYOUT.actor_keys)}, the position read from proprio); this policy was trained on an "
+            f"adapted env (actor keys {', '.join(policy.layout.actor_keys)}, position from "
+            f"{policy.layout.position_key!r}). It acts through model.predict on whole swarms (docs/own_env.md)"
+        )
     local_shape = policy.observation_space["local_obs"].shape
     assert local_shape is not None  # checked by the policy
     low, high = (np.broadcast_to(bound, policy.action_space.shape).astype(float) for bound in
@@ -57,6 +67,8 @@ class LatentSwarmAgent:
 
     :param model: a trained :class:`~sb3_latentswarm.LatentSwarmPPO` or its :class:`~sb3_latentswarm.LatentSwarmPolicy`
     :raise TypeError: for anything else
+    :raise ValueError: for a model trained on an adapted env (:func:`agent_spec`: the swarm env's layout only; such a
+        model acts through ``model.predict``)
 
     Example (one swarm of the PettingZoo env; ``link_rows[i, j]`` = 1 iff j -> i delivered, from the env's info)::
 
@@ -143,8 +155,8 @@ class LatentSwarmAgent:
             )
             out = policy.agent_step(inputs, state)
             noise_tensor = None if arrays.noise is None else th.as_tensor(arrays.noise, device=device).unsqueeze(0)
-            action = policy.actions_from_noise(out.state.task_state, noise_tensor)
-            action = policy.env_actions(action).squeeze(0).cpu().numpy().astype(np.float32)
+            actions = policy.env_actions(policy.actions_from_noise(out.state.task_state, noise_tensor))
+        action = actions.squeeze(0).cpu().numpy().astype(np.float32)
         self._state = out.state
         if not return_info:
             return action

@@ -152,7 +152,7 @@ def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 1
     :return: the :class:`ExportCheck`
     :raise ImportError: without ``onnx`` and ``onnxruntime`` (``pip install "sb3-latentswarm[deploy]"``)
     :raise RuntimeError: when onnxruntime and torch disagree beyond the tolerance (nothing is written)
-    :raise ValueError: for ``n_check_steps`` < 1
+    :raise ValueError: for ``n_check_steps`` < 1, or a policy trained on an adapted env (the swarm env's layout only)
 
     A delay-aware policy (``delay_aware=True``) is exported in format 2, with its age input (the module docstring).
     """
@@ -160,6 +160,7 @@ def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 1
     import onnxruntime as ort
 
     policy = policy_of(model)
+    spec = agent_spec(policy)  # (the swarm env's layout only)
     if int(n_check_steps) < 1:
         raise ValueError(f"n_check_steps must be >= 1, got {n_check_steps}")
     module = AgentStep(policy).to("cpu").eval()
@@ -177,7 +178,6 @@ def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 1
                            input_names=list(input_names),
                            output_names=list(output_names), dynamic_axes=dynamic, opset_version=OPSET, dynamo=False)
         graph = onnx.load_from_string(buffer.getvalue())
-        spec = agent_spec(policy)
         metadata = {
             "format": FORMATS[policy.delay_aware], "state_dims": _state_dims(policy),
             "local_obs_shape": list(spec.local_obs_shape),

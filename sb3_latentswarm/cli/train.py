@@ -112,6 +112,22 @@ def command_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def actor_line(policy: Any) -> str:
+    """The banner's line on the actor: its distribution, and what the env gets of its actions
+    (:meth:`~sb3_latentswarm.LatentSwarmPolicy.env_actions`)."""
+    low, high = policy.action_space.low, policy.action_space.high
+    uniform = low.min() == low.max() and high.min() == high.max()
+    box = f"[{low.min():g}, {high.min():g}]" if uniform else f"[{low.tolist()}, {high.tolist()}]"
+    if not policy.squash_output:
+        hint = ""
+        if not policy.unit_action_box:
+            hint = " (--set action_distribution=squashed_gaussian: the squashed actor, rescaled to the box)"
+        return f"Actor: Gaussian, sampled actions clipped to the action box {box}{hint}"
+    if policy.rescale_actions:
+        return f"Actor: tanh-squashed Gaussian, actions rescaled from [-1, 1] to the action box {box}"
+    return f"Actor: tanh-squashed Gaussian, actions inside the action box {box}"
+
+
 class _TrainCommandHooks(RunHooks):
     """What ``train`` says while its run goes, its progress bar and its ``--evaluate``."""
 
@@ -152,6 +168,7 @@ class _TrainCommandHooks(RunHooks):
             rate_text = f"{rate:g}" if isinstance(rate, (int, float)) else repr(rate)
             epochs = f"{model.n_epochs} epoch{'s' if model.n_epochs != 1 else ''}"
             print(f"PPO: learning rate {rate_text}, minibatch {model.batch_size:,} agent-steps, {epochs}")
+            print(actor_line(model.policy))
         print(f"Checkpoints every {args.save_freq:,} agent-steps in {run.checkpoint_dir} (keeping {args.keep_checkpoints})")
         # now: a run killed by kill -9 prints nothing at its end
         print(f"If stopped, resume with: {resume_command(run.output)}")

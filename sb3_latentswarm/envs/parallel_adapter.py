@@ -98,7 +98,7 @@ def check_parallel_env(env: Any) -> tuple[list[str], spaces.Box, spaces.Box]:
 
     :return: (``possible_agents``, the observation space, the action space)
     :raises TypeError: not a ParallelEnv, or a non-``Box`` space
-    :raises ValueError: no agents, or agents with different spaces
+    :raises ValueError: no agents, agents with different spaces, or an action space with an infinite bound
     """
     for name in ("possible_agents", "observation_space", "action_space", "reset", "step"):
         if not hasattr(env, name):
@@ -108,6 +108,11 @@ def check_parallel_env(env: Any) -> tuple[list[str], spaces.Box, spaces.Box]:
         raise ValueError("The env has no possible_agents")
     observation_space = _box(env.observation_space(agents[0]), "observation", agents[0])
     action_space = _box(env.action_space(agents[0]), "action", agents[0])
+    if not (np.all(np.isfinite(action_space.low)) and np.all(np.isfinite(action_space.high))):
+        raise ValueError(
+            f"The adapter needs an action Box with finite bounds (SB3's PPO does; the Gaussian actor's actions are "
+            f"clipped to the box, the squashed actor's rescaled to it); agent {agents[0]!r} has {action_space}"
+        )
     for agent in agents[1:]:
         for what, space, first in (("observation", env.observation_space(agent), observation_space),
                                    ("action", env.action_space(agent), action_space)):

@@ -239,8 +239,9 @@ class LatentSwarmPolicy(BasePolicy):
         # the env's box, for env_actions: buffers follow the policy's device, and are not saved (the space is)
         self.register_buffer("action_low", th.as_tensor(action_space.low, dtype=th.float32), persistent=False)
         self.register_buffer("action_high", th.as_tensor(action_space.high, dtype=th.float32), persistent=False)
-        unit_box = bool(np.all(action_space.low == -1.0) and np.all(action_space.high == 1.0))
-        self.rescale_actions = squashed and not unit_box
+        self.unit_action_box = bool(np.all(action_space.low == -1.0) and np.all(action_space.high == 1.0))
+        """Whether the action space is the [-1, 1] box (the swarm env's)."""
+        self.rescale_actions = squashed and not self.unit_action_box
         """Whether :meth:`env_actions` rescales (a squashed actor on a box other than [-1, 1]) rather than clips."""
         low, high = self.log_std_bounds
         if log_std_mapping == "tanh":
@@ -521,7 +522,7 @@ class LatentSwarmPolicy(BasePolicy):
         :param actions: (B, action_dim), from :meth:`forward`, :meth:`actions_from_noise` or a distribution
         :return: (B, action_dim), inside the action space, in ``actions``' dtype (or float32 if narrower)
         """
-        low, high = self.action_low, self.action_high
+        low, high = cast(th.Tensor, self.action_low), cast(th.Tensor, self.action_high)  # (registered buffers)
         if self.rescale_actions:
             return low + (actions + 1.0) * (0.5 * (high - low))
         return th.minimum(th.maximum(actions, low), high)

@@ -243,10 +243,8 @@ def test_simple_spread_comm_check_runs_and_reports(tmp_path):
     assert sorted(p.name for p in (tmp_path / "per_run").iterdir()) == ["links_seed0.json", "no_links_seed0.json"]
 
 
-def test_unbounded_action_boxes_and_the_per_uav_agent_are_refused_clearly(tmp_path):
-    """SB3 needs a bounded action box: the adapter says so when the env is built. The per-UAV agent and its ONNX
-    export read the swarm env's layout: an adapted model gets a ValueError naming model.predict, before any work."""
-    from sb3_latentswarm.agent import LatentSwarmAgent, export_onnx
+def test_unbounded_action_boxes_are_refused_when_the_env_is_built():
+    """SB3's PPO needs a bounded action box: the adapter says so before any training (SB3 asserted later)."""
 
     class Unbounded(Rendezvous):
         def action_space(self, agent):
@@ -254,9 +252,43 @@ def test_unbounded_action_boxes_and_the_per_uav_agent_are_refused_clearly(tmp_pa
 
     with pytest.raises(ValueError, match=r"finite bounds.*agent 'agent_0' has Box\(-inf, inf"):
         make_adapted_vec_env(Unbounded, 2, link_model=LINK_SPECS["bernoulli"])
-    model = small_model(make_adapted_vec_env(Rendezvous, 2, link_model=LINK_SPECS["bernoulli"],
-                                             position_fn=rendezvous_positions, seed=0))
-    for build in (lambda: LatentSwarmAgent(model), lambda: export_onnx(model, tmp_path / "never_written.onnx")):
-        with pytest.raises(ValueError, match=r"swarm env's observation layout.*model\.predict"):
-            build()
+
+
+@pytest.mark.parametrize("env_name", ["simple_spread_positions", "rendezvous_no_positions"])
+def test_per_uav_agents_act_as_model_predict_on_an_adapted_env(env_name, tmp_path):
+    """The per-UAV LatentSwarmAgent steps any layout: N agents fed the messages routed by the link rows act as the
+    batched model.predict (p_t from the observation's `position` key, or none); the ONNX export refuses clearly."""
+    from sb3_latentswarm.agent import LatentSwarmAgent, export_onnx
+
+    if env_name == "simple_spread_positions":
+        make = functools.partial(make_adapted_vec_env, simple_spread, 1, link_model=LINK_SPECS["gilbert_elliott"],
+                                 position_fn=mpe_positions)
+    else:
+        make = functools.partial(make_adapted_vec_env, Rendezvous, 1, link_model=LINK_SPECS["bernoulli"])
+    env = make(seed=5)
+    model = small_model(make(seed=0), policy_kwargs={**SMALL_POLICY, "action_distribution": "squashed_gaussian"})
+    with th.no_grad():  # an untrained actor's mean is ~0 (gain 0.01): give it actions that differ between agents
+        model.policy.action_mean.weight.copy_(th.randn(model.policy.action_mean.weight.shape,
+                                                       generator=th.Generator().manual_seed(1)))
+    n_agents = env.get_attr("n_agents", indices=0)[0]
+    agents = [LatentSwarmAgent(model) for _ in range(n_agents)]
+    assert agents[0].spec.position_key == ("position" if env_name == "simple_spread_positions" else None)
+    for agent in agents:
+        agent.reset()
+    obs, state, starts = env.reset(), None, np.ones(n_agents)
+    dropped = 0
+    for _ in range(8):
+        expected, state = model.predict(obs, state=state, episode_start=starts, deterministic=True)
+        sent = np.stack([agent.message() for agent in agents])
+        actions = np.stack([
+            agent.step({key: obs[key][i] for key in obs}, sent[obs["link_row"][i] > 0], deterministic=True)
+            for i, agent in enumerate(agents)
+        ])
+        np.testing.assert_allclose(actions, expected, rtol=0, atol=1e-5)
+        dropped += int((obs["link_row"].sum(-1) == 0).sum())
+        obs, _, starts, _ = env.step(expected)
+        assert not starts.any()
+    assert dropped > 0  # the predictor's path ran too
+    with pytest.raises(ValueError, match=r"export_onnx takes the swarm env's observation layout.*LatentSwarmAgent"):
+        export_onnx(model, tmp_path / "never_written.onnx")
     assert not list(tmp_path.iterdir())

@@ -14,7 +14,6 @@ import numpy as np
 import torch as th
 
 from sb3_latentswarm.agent.inputs import AgentSpec, AgentStepInfo, check_step, pooled_message_age
-from sb3_latentswarm.envs.observations import PROPRIO_POSITION, SWARM_LAYOUT
 from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
 from sb3_latentswarm.latent_ppo.recurrence import AgentInputs, outgoing_message
 from sb3_latentswarm.latent_ppo.type_aliases import LatentState
@@ -34,23 +33,13 @@ def policy_of(model: Any) -> LatentSwarmPolicy:
 
 
 def agent_spec(policy: LatentSwarmPolicy) -> AgentSpec:
-    """The sizes of one UAV's step under ``policy``.
-
-    :raise ValueError: for a policy trained on an adapted env (another observation layout than the swarm env's)
-    """
-    if policy.layout != SWARM_LAYOUT:
-        raise ValueError(
-            "The per-UAV agent, its ONNX export and the UAV processes take the swarm env's observation layout "
-            f"({', '.join(SWARM_LAYOUT.actor_keys)}, the position read from proprio); this policy was trained on an "
-            f"adapted env (actor keys {', '.join(policy.layout.actor_keys)}, position from "
-            f"{policy.layout.position_key!r}). It acts through model.predict on whole swarms (docs/own_env.md)"
-        )
+    """The sizes of one UAV's step under ``policy`` (any observation layout: the swarm env's or an adapted env's)."""
     local_shape = policy.observation_space["local_obs"].shape
     assert local_shape is not None  # checked by the policy
     low, high = (np.broadcast_to(bound, policy.action_space.shape).astype(float) for bound in
                  (policy.action_space.low, policy.action_space.high))
     return AgentSpec(tuple(int(n) for n in local_shape), policy.proprio_dim, policy.message_dim, policy.action_dim,
-                     tuple(low.tolist()), tuple(high.tolist()))
+                     tuple(low.tolist()), tuple(high.tolist()), policy.layout.position_key, policy.position_dims)
 
 
 class LatentSwarmAgent:
@@ -67,8 +56,6 @@ class LatentSwarmAgent:
 
     :param model: a trained :class:`~sb3_latentswarm.LatentSwarmPPO` or its :class:`~sb3_latentswarm.LatentSwarmPolicy`
     :raise TypeError: for anything else
-    :raise ValueError: for a model trained on an adapted env (:func:`agent_spec`: the swarm env's layout only; such a
-        model acts through ``model.predict``)
 
     Example (one swarm of the PettingZoo env; ``link_rows[i, j]`` = 1 iff j -> i delivered, from the env's info)::
 
@@ -148,7 +135,9 @@ class LatentSwarmAgent:
                 keep=th.ones(1, 1, device=device),
                 local_obs=th.as_tensor(arrays.local_obs, device=device).unsqueeze(0),
                 proprio=proprio,
-                position=proprio[:, PROPRIO_POSITION],
+                position=policy.map_position(
+                    {} if arrays.position is None else {"position": th.as_tensor(arrays.position, device=device)[None]},
+                    proprio),
                 received_message=th.as_tensor(arrays.message_mean, device=device).unsqueeze(0),
                 has_message=th.tensor([arrays.message_count > 0], device=device),
                 message_age=None if message_age is None else th.tensor([[message_age]], device=device),

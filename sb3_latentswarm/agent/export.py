@@ -152,7 +152,8 @@ def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 1
     :return: the :class:`ExportCheck`
     :raise ImportError: without ``onnx`` and ``onnxruntime`` (``pip install "sb3-latentswarm[deploy]"``)
     :raise RuntimeError: when onnxruntime and torch disagree beyond the tolerance (nothing is written)
-    :raise ValueError: for ``n_check_steps`` < 1, or a policy trained on an adapted env (the swarm env's layout only)
+    :raise ValueError: for ``n_check_steps`` < 1, or a policy trained on an adapted env (the export takes the swarm
+        env's layout; :class:`~sb3_latentswarm.agent.LatentSwarmAgent` steps any layout)
 
     A delay-aware policy (``delay_aware=True``) is exported in format 2, with its age input (the module docstring).
     """
@@ -160,7 +161,14 @@ def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 1
     import onnxruntime as ort
 
     policy = policy_of(model)
-    spec = agent_spec(policy)  # (the swarm env's layout only)
+    if policy.layout.position_key != "proprio":  # the graph reads p_t from proprio, as the swarm env's layout has it
+        raise ValueError(
+            "export_onnx takes the swarm env's observation layout (local_obs, and proprio whose first entries are the "
+            f"position); this policy was trained on an adapted env (actor keys {', '.join(policy.layout.actor_keys)}, "
+            f"position from {policy.layout.position_key!r}): deploy it per UAV with LatentSwarmAgent (torch), or act "
+            "with model.predict on whole swarms"
+        )
+    spec = agent_spec(policy)
     if int(n_check_steps) < 1:
         raise ValueError(f"n_check_steps must be >= 1, got {n_check_steps}")
     module = AgentStep(policy).to("cpu").eval()

@@ -19,12 +19,18 @@ class AgentSpec:
     local_obs_shape: tuple[int, ...]
     """Shape of one UAV's ``local_obs`` o_t (flattened to o_dim floats inside the step)."""
     proprio_dim: int
-    """e_dim, the size of ``proprio`` e_t (its first three entries are the normalized position p_t)."""
+    """e_dim, the size of ``proprio`` e_t (on the swarm env its first three entries are the normalized position p_t;
+    0 on an adapted env without an own-state function)."""
     message_dim: int
     """d = d_mu + d_tau, the floats of one message z = [mu; tau] (Sec. III-B)."""
     action_dim: int
     action_low: tuple[float, ...]
     action_high: tuple[float, ...]
+    position_key: str | None = "proprio"
+    """Where the map update's p_t comes from (the policy's ``layout.position_key``): ``"proprio"`` (the swarm env),
+    ``"position"`` (an adapted env with a position function: the observation's ``position`` key), ``None`` (none)."""
+    position_dims: int = 3
+    """The size of p_t (2 or 3; 0 without positions)."""
 
 
 class AgentStepInfo(NamedTuple):
@@ -57,14 +63,17 @@ class StepArrays:
     """|N_t^i|, how many messages arrived."""
     noise: np.ndarray | None
     """eps ~ N(0, I) for a sampled action, (action_dim,); ``None`` for the mean action."""
+    position: np.ndarray | None = None
+    """p_t, (position_dims,), where the spec reads it from the ``position`` key (an adapted env); else ``None``."""
 
 
 def check_step(spec: AgentSpec, observation: Any, received_messages: Any, deterministic: bool, noise: Any,
                rng: Any, own_rng: np.random.Generator) -> StepArrays:
     """Check one step's inputs and turn them into float32 arrays.
 
-    :param observation: a mapping with ``local_obs`` (``spec.local_obs_shape``) and ``proprio`` (``(e_dim,)``); other
-        keys (``link_row``, the critic's keys) are ignored, so a PettingZoo per-agent observation fits as is
+    :param observation: a mapping with ``local_obs`` (``spec.local_obs_shape``), ``proprio`` (``(e_dim,)``) and, for
+        a policy trained on an adapted env with positions, ``position`` (``(position_dims,)``); other keys
+        (``link_row``, the critic's keys) are ignored, so a per-agent observation of the vec env fits as is
     :param received_messages: the messages z_{t-1}^j that arrived this step, (k, d) for any k >= 0 (an empty
         sequence is k = 0)
     :param deterministic: the mean action (then ``noise`` and ``rng`` must be None)
@@ -76,7 +85,8 @@ def check_step(spec: AgentSpec, observation: Any, received_messages: Any, determ
     """
     if not isinstance(observation, Mapping):
         raise TypeError(f"observation must be a mapping with keys 'local_obs' and 'proprio', got {type(observation).__name__}")
-    missing = [key for key in ("local_obs", "proprio") if key not in observation]
+    keys = ("local_obs", "proprio", "position") if spec.position_key == "position" else ("local_obs", "proprio")
+    missing = [key for key in keys if key not in observation]
     if missing:
         raise ValueError(f"observation lacks the key(s) {missing} (has {list(observation)})")
     local_obs = _numeric("observation['local_obs']", observation["local_obs"])
@@ -85,7 +95,12 @@ def check_step(spec: AgentSpec, observation: Any, received_messages: Any, determ
     proprio = _numeric("observation['proprio']", observation["proprio"])
     if proprio.shape != (spec.proprio_dim,):
         raise ValueError(f"observation['proprio'] must have shape ({spec.proprio_dim},), got {proprio.shape}")
-    if not (np.isfinite(local_obs).all() and np.isfinite(proprio).all()):
+    position = None
+    if spec.position_key == "position":
+        position = _numeric("observation['position']", observation["position"])
+        if position.shape != (spec.position_dims,):
+            raise ValueError(f"observation['position'] must have shape ({spec.position_dims},), got {position.shape}")
+    if not all(np.isfinite(x).all() for x in (local_obs, proprio, *(() if position is None else (position,)))):
         raise ValueError("observation holds a non-finite value (NaN or inf)")
 
     messages = _numeric("received_messages", received_messages)
@@ -120,7 +135,7 @@ def check_step(spec: AgentSpec, observation: Any, received_messages: Any, determ
             raise ValueError("noise holds a non-finite value (NaN or inf)")
     else:
         eps = (own_rng if rng is None else rng).standard_normal(spec.action_dim).astype(np.float32)
-    return StepArrays(local_obs.reshape(-1), proprio, mean.astype(np.float32), count, eps)
+    return StepArrays(local_obs.reshape(-1), proprio, mean.astype(np.float32), count, eps, position)
 
 
 def pooled_message_age(message_ages: Any, count: int, expiry: int, delay_aware: bool) -> float | None:

@@ -395,12 +395,14 @@ def compare(args: argparse.Namespace) -> dict[str, Any]:
     """``args.compare``'s package (old) against the working tree's (new), alternating subprocesses; medians and ratios."""
     arguments = ["--preset", args.preset, "--device", args.device, "--updates", str(args.updates), "--warmup",
                  str(args.warmup), "--threads", str(args.threads), "--backend", args.backend, "--seed", str(args.seed),
-                 "--no-profile", "--json", "-"]
+                 "--no-profile"]
     if args.autocast is not None:
         arguments += ["--autocast", args.autocast]
+    shown = list(arguments)  # what the report names (without the JSON plumbing); --autocast was dropped before
+    arguments += ["--json", "-"]
     header = "| code | round | " + " | ".join(COMPARED) + " | load before -> after |"
     print(f"old: {args.compare}, new: the working tree; {args.rounds} alternating round(s) of `update_time.py "
-          f"{' '.join(arguments[:-3])}`; seconds per update (child_cpu_s: the whole subprocess)", flush=True)
+          f"{' '.join(shown)}`; seconds per update (child_cpu_s: the whole subprocess)", flush=True)
     print(header + "\n" + "|---" * (header.count("|") - 1) + "|", flush=True)
 
     def show(run: Run) -> None:
@@ -422,7 +424,7 @@ def compare(args: argparse.Namespace) -> dict[str, Any]:
     return {
         "compare": args.compare,
         "rounds": args.rounds,
-        "arguments": arguments[:-3],
+        "arguments": shown,
         "load_average": {"before": list(load_before), "after": list(os.getloadavg())},
         "medians": medians,
         "ratios": ratios,

@@ -12,6 +12,7 @@ from torch.distributions import Normal
 
 __all__ = [
     "TanhSquashedGaussianDistribution",
+    "action_entropy",
     "UnvalidatedDiagGaussianDistribution",
     "inverse_smooth_log_std",
     "smooth_log_std",
@@ -87,3 +88,16 @@ class TanhSquashedGaussianDistribution(SquashedDiagGaussianDistribution):
         log_det = 2.0 * (math.log(2.0) - gaussian_actions - F.softplus(-2.0 * gaussian_actions))
         return log_prob - log_det.sum(dim=-1)
 
+
+def action_entropy(distribution: DiagGaussianDistribution) -> th.Tensor:
+    """The entropy of each row of ``distribution``, (B,): exact for the Gaussian; for the squashed Gaussian, which has no
+    closed form, the one-sample estimate -log pi(tanh(u)) with a reparameterized u ~ N(mean, std^2), as SB3's SAC does.
+    Its gradient is an unbiased estimate of the entropy's gradient (SB3's PPO instead uses -log pi of the stored action,
+    whose expected gradient is zero at the rollout's policy). ``LatentSwarmPolicy.action_entropy``."""
+    entropy = distribution.entropy()
+    if entropy is not None:
+        return entropy
+    # only the squashed Gaussian has no closed-form entropy; its log_prob takes the pre-squash actions too
+    assert isinstance(distribution, SquashedDiagGaussianDistribution)
+    gaussian_actions = distribution.distribution.rsample()
+    return -distribution.log_prob(th.tanh(gaussian_actions), gaussian_actions)

@@ -21,7 +21,7 @@ from typing import Any, NamedTuple, cast
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.distributions import DiagGaussianDistribution, SquashedDiagGaussianDistribution
+from stable_baselines3.common.distributions import DiagGaussianDistribution
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
@@ -31,6 +31,7 @@ from sb3_latentswarm.latent_ppo.critic import build_critic, critic_output, mlp
 from sb3_latentswarm.latent_ppo.distributions import (  # noqa: F401  (smooth_log_std & co: also importable from here)
     TanhSquashedGaussianDistribution,
     UnvalidatedDiagGaussianDistribution,
+    action_entropy,
     inverse_smooth_log_std,
     smooth_log_std,
     unvalidated_normal,
@@ -236,13 +237,10 @@ class LatentSwarmPolicy(BasePolicy):
         self.log_std_bounds = check_log_std_bounds(log_std_bounds)
         self.log_std_mapping = log_std_mapping
         self.action_distribution_name = action_distribution
-        # the env's box, for env_actions: buffers follow the policy's device, and are not saved (the space is)
-        self.register_buffer("action_low", th.as_tensor(action_space.low, dtype=th.float32), persistent=False)
-        self.register_buffer("action_high", th.as_tensor(action_space.high, dtype=th.float32), persistent=False)
+        for name, bound in (("action_low", action_space.low), ("action_high", action_space.high)):  # for env_actions
+            self.register_buffer(name, th.as_tensor(bound, dtype=th.float32), persistent=False)  # (the space is saved)
         self.unit_action_box = bool(np.all(action_space.low == -1.0) and np.all(action_space.high == 1.0))
-        """Whether the action space is the [-1, 1] box (the swarm env's)."""
-        self.rescale_actions = squashed and not self.unit_action_box
-        """Whether :meth:`env_actions` rescales (a squashed actor on a box other than [-1, 1]) rather than clips."""
+        self.rescale_actions = squashed and not self.unit_action_box  # env_actions rescales rather than clips
         low, high = self.log_std_bounds
         if log_std_mapping == "tanh":
             check_float(f"log_std_init (log_std_mapping='tanh', log_std_bounds {self.log_std_bounds})", log_std_init,
@@ -513,33 +511,16 @@ class LatentSwarmPolicy(BasePolicy):
         return th.tanh(actions) if self.squash_output else actions
 
     def env_actions(self, actions: th.Tensor) -> th.Tensor:
-        """The actions the env takes for the actor's ``actions``: the one place that maps them to the action box.
-
-        Gaussian actor: clipped to the box, as SB3's PPO clips. Squashed Gaussian on a box other than [-1, 1]
-        (:attr:`rescale_actions`): a in [-1, 1] rescaled linearly to [low, high], low + (a + 1) (high - low) / 2, as
-        SB3's ``unscale_action``; on the [-1, 1] box (the paper's swarm env) the clip, which leaves tanh's a as it is.
-
-        :param actions: (B, action_dim), from :meth:`forward`, :meth:`actions_from_noise` or a distribution
-        :return: (B, action_dim), inside the action space, in ``actions``' dtype (or float32 if narrower)
-        """
+        """The actions the env takes for the actor's ``actions`` (B, action_dim), the one place that maps them to the
+        box: clipped (the Gaussian, as SB3's PPO), or for the squashed actor on a box other than [-1, 1]
+        (:attr:`rescale_actions`) rescaled, low + (a + 1) (high - low) / 2, as SB3's ``unscale_action``. Returns
+        (B, action_dim) in ``actions``' dtype (float32 at least)."""
         low, high = cast(th.Tensor, self.action_low), cast(th.Tensor, self.action_high)  # (registered buffers)
         if self.rescale_actions:
             return low + (actions + 1.0) * (0.5 * (high - low))
         return th.minimum(th.maximum(actions, low), high)
 
-    @staticmethod
-    def action_entropy(distribution: DiagGaussianDistribution) -> th.Tensor:
-        """The entropy of each row of ``distribution``, (B,): exact for the Gaussian; for the squashed Gaussian, which
-        has no closed form, the one-sample estimate -log pi(tanh(u)) with a reparameterized u ~ N(mean, std^2), as
-        SB3's SAC does. Its gradient is an unbiased estimate of the entropy's gradient (SB3's PPO instead uses
-        -log pi of the stored action, whose expected gradient is zero at the rollout's policy)."""
-        entropy = distribution.entropy()
-        if entropy is not None:
-            return entropy
-        # only the squashed Gaussian has no closed-form entropy; its log_prob takes the pre-squash actions too
-        assert isinstance(distribution, SquashedDiagGaussianDistribution)
-        gaussian_actions = distribution.distribution.rsample()
-        return -distribution.log_prob(th.tanh(gaussian_actions), gaussian_actions)
+    action_entropy = staticmethod(action_entropy)  # (distributions.action_entropy: the squashed Gaussian's estimate)
 
     @property
     def critic_parameters(self) -> list[nn.Parameter]:

@@ -103,8 +103,9 @@ def load_scores(args: Args):
     if not twice.empty:
         first = twice.iloc[0]
         files = sorted(set(twice[(twice[key] == first[key]).all(axis=1)]["_file"]))
+        row = {name: first[name].item() if hasattr(first[name], "item") else first[name] for name in key}
         raise ValueError(
-            f"the row {dict(first[key])} comes more than once (in {', '.join(files)}): the files must hold different "
+            f"the row {row} comes more than once (in {', '.join(files)}): the files must hold different "
             "learners of the same cells and evaluation episodes"
         )
     against_condition = args.condition if args.against_condition is None else args.against_condition

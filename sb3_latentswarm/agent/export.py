@@ -164,9 +164,9 @@ def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 1
     if policy.layout.position_key != "proprio":  # the graph reads p_t from proprio, as the swarm env's layout has it
         raise ValueError(
             "export_onnx takes the swarm env's observation layout (local_obs, and proprio whose first entries are the "
-            f"position); this policy was trained on an adapted env (actor keys {', '.join(policy.layout.actor_keys)}, "
-            f"position from {policy.layout.position_key!r}): deploy it per UAV with LatentSwarmAgent (torch), or act "
-            "with model.predict on whole swarms"
+            f"position); this policy was trained on an adapted env (it reads {', '.join(policy.layout.actor_keys)}; "
+            + ("no position" if policy.layout.position_key is None else f"the position from {policy.layout.position_key!r}")
+            + "): deploy it per UAV with LatentSwarmAgent (torch), or act with model.predict on whole swarms"
         )
     spec = agent_spec(policy)
     if int(n_check_steps) < 1:

@@ -71,9 +71,8 @@ def test_update_time_split_sums_to_the_total(smoke_result):
         # the nested ranges lie inside their parents, timed independently of them
         assert s["env"] + s["policy"] <= s["rollout"] * 1.001
         assert s["backward"] + s["optimizer"] <= s["train"] * 1.001
-        # rollout + training are the update, but for SB3's bookkeeping in learn (logging, callbacks); a smoke update
-        # takes about 0.2 s, so a one-off pause of the process (0.1 s seen in a CI run) gets an absolute slack too
-        assert min(0.75 * s["update"], s["update"] - 0.2) <= s["rollout"] + s["train"] <= s["update"] * 1.001, s
+        # rollout + training are the update, but for SB3's bookkeeping in learn (logging, callbacks)
+        assert 0.75 * s["update"] <= s["rollout"] + s["train"] <= s["update"] * 1.001, s
 
 
 def test_update_time_counts_host_syncs(smoke_result):

@@ -27,6 +27,15 @@ format 2: one more state, ``prev_message_age`` (B, 1), alpha_{t-1} (after ``held
 ``next_prev_message_age``), and one more input, ``message_age`` (B, 1), alpha_t = the mean age of the messages in
 ``message_mean`` divided by the expiry E (0 when nothing arrived; after ``message_count``). ``message_mean`` then holds
 each message as its sender broadcast it (:func:`~sb3_latentswarm.agent.onnx_runtime.onnx_io_names`).
+
+A policy trained on an adapted env (any PettingZoo ``ParallelEnv`` through
+:func:`~sb3_latentswarm.envs.make_adapted_vec_env`, ``docs/own_env.md``) is exported in format 3 (format 4 when it is
+delay-aware: the age state and input as in format 2). Its ``proprio`` is the own-state function's e_t, (B, e_dim) with
+e_dim possibly 0 (then a (B, 0) input), and p_t is not in it: where the env has a position function, one more input,
+``position`` (B, position_dims), p_t (after ``proprio``); without positions, no input (the map update reads no
+position, as the policy's). The metadata records the layout (``position_key``: ``"position"`` or ``None``, and
+``position_dims``: 3 or 0), so :class:`~sb3_latentswarm.agent.OnnxSwarmAgent` checks the observations as
+:class:`~sb3_latentswarm.agent.LatentSwarmAgent` does. Files of the swarm env's layout are unchanged (formats 1, 2).
 """
 
 from __future__ import annotations
@@ -47,7 +56,7 @@ from torch import nn
 
 from sb3_latentswarm.agent.agent import agent_spec, policy_of
 from sb3_latentswarm.agent.onnx_runtime import FORMATS, onnx_io_names
-from sb3_latentswarm.envs.observations import PROPRIO_POSITION
+from sb3_latentswarm.envs.observations import POSITION_KEY
 from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
 from sb3_latentswarm.latent_ppo.recurrence import AgentInputs, Blocks, agent_update, gru_cell, outgoing_message
 from sb3_latentswarm.latent_ppo.type_aliases import LatentState
@@ -56,11 +65,13 @@ from sb3_latentswarm.utils.atomic import write_bytes
 __all__ = ["EXPORT_TOLERANCE", "INPUT_NAMES", "METADATA_KEY", "OUTPUT_NAMES", "OPSET", "ExportCheck", "export_onnx"]
 
 STATE_NAMES, INPUT_NAMES, OUTPUT_NAMES = onnx_io_names(False)
-"""The names of the paper's exported step (format 1; a delay-aware step: ``onnx_io_names(True)``)."""
+"""The names of the paper's exported step (format 1; a delay-aware step: ``onnx_io_names(True)``; an adapted layout's
+step: ``onnx_io_names(delay_aware, position=True)`` where it reads positions)."""
 assert STATE_NAMES == LatentState._fields[:6]  # (sent_history is not exported: the received messages come as sent)
 OPSET = 17
 METADATA_KEY = "sb3_latentswarm"
-"""The key of the file's metadata (JSON: sizes, action bounds, substitute, the checked error) read by the runtime."""
+"""The key of the file's metadata (JSON: format, sizes, action bounds, substitute; the layout in formats 3 and 4) read
+by the runtime."""
 EXPORT_TOLERANCE = 1e-5
 """The largest difference between onnxruntime and the float32 torch step that :func:`export_onnx` accepts."""
 
@@ -86,26 +97,39 @@ class AgentStep(nn.Module):
     def __init__(self, policy: LatentSwarmPolicy) -> None:
         super().__init__()
         self.policy = policy
-        self.state_names, self.input_names, self.output_names = onnx_io_names(policy.delay_aware)
+        self.state_names, self.input_names, self.output_names = _io_names(policy)
 
     def forward(self, *tensors: th.Tensor) -> tuple[th.Tensor, ...]:
         named = dict(zip(self.input_names, tensors))
         state = _latent_state(tensors[: len(self.state_names)])
-        out = agent_update(self.policy, _agent_inputs(named), state, _GraphLinears(self.policy))
+        out = agent_update(self.policy, _agent_inputs(self.policy, named), state, _GraphLinears(self.policy))
         action = self.policy.env_actions(self.policy.actions_from_noise(out.state.task_state, named["noise"]))
         exported = [getattr(out.state, name) for name in self.state_names]
         return (action, *exported, outgoing_message(out.state), out.predicted_message)
 
 
-def _agent_inputs(named: dict[str, th.Tensor]) -> AgentInputs:
-    """:class:`AgentInputs` of one exported step's inputs (by name; ``message_age`` present for a delay-aware step)."""
+def _io_names(policy: LatentSwarmPolicy) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
+    """``(state, input, output)`` names of ``policy``'s exported step (:func:`onnx_io_names` of its layout)."""
+    return onnx_io_names(policy.delay_aware, policy.layout.position_key == POSITION_KEY)
+
+
+def _export_format(policy: LatentSwarmPolicy) -> int:
+    """The export format of ``policy``'s file (:data:`~sb3_latentswarm.agent.onnx_runtime.FORMATS`): 1 or 2 on the
+    swarm env's layout, 3 or 4 on an adapted env's (2 and 4: delay-aware)."""
+    return FORMATS[policy.layout.position_key != "proprio", policy.delay_aware]
+
+
+def _agent_inputs(policy: LatentSwarmPolicy, named: dict[str, th.Tensor]) -> AgentInputs:
+    """:class:`AgentInputs` of one exported step's inputs (by name; ``message_age`` present for a delay-aware step,
+    ``position`` for an adapted layout with positions). p_t is the policy's own ``map_position``: the first entries of
+    ``proprio`` (the swarm env), the input ``position``, or 0 columns."""
     proprio, message_mean = named["proprio"], named["message_mean"]
     has_message = named["message_count"] > 0
     return AgentInputs(
-        keep=th.ones_like(proprio[:, :1]),
+        keep=th.ones_like(message_mean[:, :1]),  # (not proprio's: it may have 0 columns on an adapted env)
         local_obs=named["local_obs"],
         proprio=proprio,
-        position=proprio[:, PROPRIO_POSITION],
+        position=policy.map_position(named, proprio),
         received_message=th.where(has_message.unsqueeze(-1), message_mean, th.zeros_like(message_mean)),
         has_message=has_message,
         message_age=named.get("message_age"),
@@ -152,22 +176,15 @@ def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 1
     :return: the :class:`ExportCheck`
     :raise ImportError: without ``onnx`` and ``onnxruntime`` (``pip install "sb3-latentswarm[deploy]"``)
     :raise RuntimeError: when onnxruntime and torch disagree beyond the tolerance (nothing is written)
-    :raise ValueError: for ``n_check_steps`` < 1, or a policy trained on an adapted env (the export takes the swarm
-        env's layout; :class:`~sb3_latentswarm.agent.LatentSwarmAgent` steps any layout)
+    :raise ValueError: for ``n_check_steps`` < 1
 
-    A delay-aware policy (``delay_aware=True``) is exported in format 2, with its age input (the module docstring).
+    A delay-aware policy (``delay_aware=True``) is exported in format 2, with its age input; a policy trained on an
+    adapted env in format 3 (4 when delay-aware), with its layout's inputs (the module docstring).
     """
     import onnx
     import onnxruntime as ort
 
     policy = policy_of(model)
-    if policy.layout.position_key != "proprio":  # the graph reads p_t from proprio, as the swarm env's layout has it
-        raise ValueError(
-            "export_onnx takes the swarm env's observation layout (local_obs, and proprio whose first entries are the "
-            f"position); this policy was trained on an adapted env (it reads {', '.join(policy.layout.actor_keys)}; "
-            + ("no position" if policy.layout.position_key is None else f"the position from {policy.layout.position_key!r}")
-            + "): deploy it per UAV with LatentSwarmAgent (torch), or act with model.predict on whole swarms"
-        )
     spec = agent_spec(policy)
     if int(n_check_steps) < 1:
         raise ValueError(f"n_check_steps must be >= 1, got {n_check_steps}")
@@ -187,13 +204,15 @@ def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 1
                            output_names=list(output_names), dynamic_axes=dynamic, opset_version=OPSET, dynamo=False)
         graph = onnx.load_from_string(buffer.getvalue())
         metadata = {
-            "format": FORMATS[policy.delay_aware], "state_dims": _state_dims(policy),
+            "format": _export_format(policy), "state_dims": _state_dims(policy),
             "local_obs_shape": list(spec.local_obs_shape),
             "proprio_dim": spec.proprio_dim, "message_dim": spec.message_dim, "action_dim": spec.action_dim,
             "action_low": list(spec.action_low), "action_high": list(spec.action_high),
             "message_substitute": policy.message_substitute, "no_memory": policy.no_memory,
             "trained_autocast": policy.autocast,
         }
+        if policy.layout.position_key != "proprio":  # (formats 3 and 4: the adapted layout)
+            metadata.update(position_key=spec.position_key, position_dims=spec.position_dims)
         if policy.delay_aware:
             metadata.update(delay_aware=True, message_expiry=policy.message_expiry)
         onnx.helper.set_model_props(graph, {METADATA_KEY: json.dumps(metadata)})
@@ -218,18 +237,20 @@ def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 1
 def _state_dims(policy: LatentSwarmPolicy) -> list[int]:
     """The sizes of the exported state fields (:func:`onnx_io_names`' state names)."""
     dims = dict(zip(LatentState._fields, policy.latent_dims))
-    return [dims[name] for name in onnx_io_names(policy.delay_aware)[0]]
+    return [dims[name] for name in _io_names(policy)[0]]
 
 
 def _check_episode(policy: LatentSwarmPolicy, n_steps: int, seed: int) -> list[tuple[np.ndarray, ...]]:
-    """The inputs of ``n_steps`` steps of 3 UAVs (batch 3) stepped by the float32 export module: observations from the
-    observation space, messages the UAVs' own (every link up every third step, none every fourth), and for a
-    delay-aware policy ages drawn in [0, 1] (0 where nothing arrived)."""
+    """The inputs of ``n_steps`` steps of 3 UAVs (batch 3) stepped by the float32 export module, in the order of its
+    input names: observations from the observation space (the position too, where the layout has the key), messages
+    the UAVs' own (every link up every third step, none every fourth), and for a delay-aware policy ages drawn in
+    [0, 1] (0 where nothing arrived)."""
     rng = np.random.default_rng(seed)
     local_space, proprio_space = (cast(spaces.Box, policy.observation_space[key]) for key in ("local_obs", "proprio"))
     n = 3
     local_shape = local_space.shape
     module = AgentStep(policy).eval()
+    position_space = cast(spaces.Box, policy.observation_space[POSITION_KEY]) if "position" in module.input_names else None
     state = [np.zeros((n, dim), dtype=np.float32) for dim in _state_dims(policy)]
     n_states = len(state)
     message = np.zeros((n, policy.message_dim), dtype=np.float32)
@@ -249,8 +270,13 @@ def _check_episode(policy: LatentSwarmPolicy, n_steps: int, seed: int) -> list[t
         mean = (links.astype(np.float32) @ message) / np.maximum(count, 1)[:, None].astype(np.float32)
         noise = rng.standard_normal((n, policy.action_dim)).astype(np.float32) * (t % 2)
         age = (rng.random((n, 1)) * (count[:, None] > 0)).astype(np.float32)
-        inputs = (*state, local_obs, proprio, mean.astype(np.float32), count.astype(np.int64),
-                  *((age,) if policy.delay_aware else ()), noise)
+        named = dict(zip(module.state_names, state), local_obs=local_obs, proprio=proprio,
+                     message_mean=mean.astype(np.float32), message_count=count.astype(np.int64), message_age=age,
+                     noise=noise)
+        if position_space is not None:
+            position = rng.uniform(_finite(position_space.low), _finite(position_space.high), (n, *position_space.shape))
+            named["position"] = position.astype(np.float32)
+        inputs = tuple(named[name] for name in module.input_names)
         steps.append(inputs)
         with th.no_grad():
             out = [t.numpy() for t in module(*(th.as_tensor(x) for x in inputs))]
@@ -266,10 +292,10 @@ def _finite(bound: np.ndarray) -> np.ndarray:
 
 def _own_step_action(policy: LatentSwarmPolicy, inputs: tuple[np.ndarray, ...]) -> np.ndarray:
     """The action of the policy's own step (under its autocast) for one step's export inputs."""
-    state_names, input_names, _ = onnx_io_names(policy.delay_aware)
+    state_names, input_names, _ = _io_names(policy)
     named = {name: th.as_tensor(x) for name, x in zip(input_names, inputs)}
     state = _latent_state([named[name] for name in state_names])
     with th.no_grad():
-        out = policy.agent_step(_agent_inputs(named), state)
+        out = policy.agent_step(_agent_inputs(policy, named), state)
         action = policy.env_actions(policy.actions_from_noise(out.state.task_state, named["noise"]))
     return action.numpy()

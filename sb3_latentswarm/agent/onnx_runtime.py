@@ -15,19 +15,24 @@ from sb3_latentswarm.agent.inputs import AgentSpec, AgentStepInfo, check_step, p
 __all__ = ["FORMATS", "OnnxSwarmAgent", "onnx_io_names"]
 
 _METADATA_KEY = "sb3_latentswarm"  # export.METADATA_KEY (export imports torch)
-FORMATS = {False: 1, True: 2}
-"""The export format of a file, by whether its policy is delay-aware: 1 (the paper's step) or 2 (format 1 with the
-age state ``prev_message_age`` and the age input ``message_age``)."""
+FORMATS = {(False, False): 1, (False, True): 2, (True, False): 3, (True, True): 4}
+"""The export format of a file, by (adapted layout, delay-aware): 1, the paper's step on the swarm env's layout (p_t
+is the first entries of ``proprio``); 2, format 1 with the age state ``prev_message_age`` and the age input
+``message_age``; 3, the step of a policy trained on an adapted env (``docs/own_env.md``): p_t from the input
+``position`` where the env has positions, none otherwise, as the metadata's ``position_key`` says; 4, format 3 with
+the age state and input."""
 _STATE_NAMES = ("map_state", "task_state", "memory_state", "prev_local_obs", "prev_message", "held_message")
 
 
-def onnx_io_names(delay_aware: bool) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
+def onnx_io_names(delay_aware: bool, position: bool = False) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
     """``(state, input, output)`` names of an exported step (``export_onnx``'s table); a delay-aware step adds the state
     ``prev_message_age`` (alpha_{t-1}, (B, 1)) and the input ``message_age`` (alpha_t, (B, 1), after
-    ``message_count``)."""
+    ``message_count``); ``position``: the step of an adapted layout that reads p_t from the observation's ``position``
+    key adds the input ``position`` ((B, position_dims), after ``proprio``; formats 3 and 4)."""
     states = (*_STATE_NAMES, "prev_message_age") if delay_aware else _STATE_NAMES
     age = ("message_age",) if delay_aware else ()
-    inputs = (*states, "local_obs", "proprio", "message_mean", "message_count", *age, "noise")
+    inputs = (*states, "local_obs", "proprio", *(("position",) if position else ()), "message_mean", "message_count",
+              *age, "noise")
     outputs = ("action", *(f"next_{name}" for name in states), "message", "predicted_message")
     return states, inputs, outputs
 
@@ -42,7 +47,12 @@ class OnnxSwarmAgent:
     :param intra_op_num_threads: threads of one step (default 1: one UAV's step is small, and a computer on a UAV runs
         other processes)
     :raise ImportError: without onnxruntime (``pip install "sb3-latentswarm[deploy]"``)
-    :raise ValueError: for a file without the metadata :func:`export_onnx` writes
+    :raise ValueError: for a file without the metadata :func:`export_onnx` writes, of a format this runtime does not
+        read (:data:`FORMATS`), or whose format does not match its metadata
+
+    A file of an adapted env's policy (format 3 or 4) takes the observations that
+    :class:`~sb3_latentswarm.agent.LatentSwarmAgent` takes for that policy: ``local_obs``, ``proprio`` (e_dim may be
+    0) and, where its env has positions, ``position`` (``(position_dims,)``), with the same checks.
     """
 
     def __init__(self, path: str | os.PathLike[str], providers: list[str] | None = None,
@@ -62,14 +72,18 @@ class OnnxSwarmAgent:
                              f"{sorted(FORMATS.values())}")
         meta = self.metadata
         self.delay_aware: bool = bool(meta.get("delay_aware", False))
-        """Whether :meth:`step` reads ``message_ages`` (an exported delay-aware policy, format 2)."""
+        """Whether :meth:`step` reads ``message_ages`` (an exported delay-aware policy, formats 2 and 4)."""
         self.message_expiry: int = int(meta.get("message_expiry", 0))
         """E, the largest message age in steps the policy was built for (0 without delayed links)."""
-        if found != FORMATS[self.delay_aware]:
-            raise ValueError(f"{os.fspath(path)!r}: format {found} does not match delay_aware={self.delay_aware}")
-        self._names = onnx_io_names(self.delay_aware)
+        position_key = meta.get("position_key", "proprio")  # (formats 1 and 2 do not write it: the swarm env's)
+        adapted = position_key != "proprio"
+        if position_key not in ("proprio", "position", None) or found != FORMATS[adapted, self.delay_aware]:
+            raise ValueError(f"{os.fspath(path)!r}: format {found} does not match delay_aware={self.delay_aware} "
+                             f"and position_key={position_key!r}")
+        self._names = onnx_io_names(self.delay_aware, position_key == "position")
         self.spec = AgentSpec(tuple(meta["local_obs_shape"]), int(meta["proprio_dim"]), int(meta["message_dim"]),
-                              int(meta["action_dim"]), tuple(meta["action_low"]), tuple(meta["action_high"]))
+                              int(meta["action_dim"]), tuple(meta["action_low"]), tuple(meta["action_high"]),
+                              position_key, int(meta.get("position_dims", AgentSpec.position_dims)))
         self.state_dims = tuple(int(d) for d in meta["state_dims"])
         self._state: list[np.ndarray] | None = None
         self._message = np.zeros((1, self.spec.message_dim), dtype=np.float32)
@@ -107,6 +121,8 @@ class OnnxSwarmAgent:
         feed.update(local_obs=arrays.local_obs[None], proprio=arrays.proprio[None],
                     message_mean=arrays.message_mean[None], message_count=np.array([arrays.message_count], dtype=np.int64),
                     noise=eps[None])
+        if arrays.position is not None:  # (an adapted layout with positions: check_step required the key)
+            feed["position"] = arrays.position[None]
         if age is not None:
             feed["message_age"] = np.array([[age]], dtype=np.float32)
         outputs = self.session.run(list(output_names), feed)

@@ -189,3 +189,15 @@ def test_a_file_of_an_unknown_or_inconsistent_format_is_refused(exported, tmp_pa
         onnx.save(graph, changed)
         with pytest.raises(ValueError, match=match):
             OnnxSwarmAgent(changed)
+
+
+@pytest.mark.parametrize("name", ["simple_spread_positions", "rendezvous_no_positions"])
+def test_the_uav_process_simulator_refuses_an_adapted_model(exported, name):
+    """The simulator's wire carries the swarm env's ``local_obs`` and ``proprio``: an adapted model's agent (ONNX or
+    torch) is refused when its node is built, before any episode, not at its first step."""
+    from sb3_latentswarm.agent.processes import InProcessSwarm
+
+    model, path, _ = exported(name)
+    for agent in (OnnxSwarmAgent(path), LatentSwarmAgent(model)):
+        with pytest.raises(ValueError, match="adapted env"):
+            InProcessSwarm([agent])

@@ -53,12 +53,21 @@ class UavNode:
     messages only (each as its sender broadcast it).
 
     :param agent: a :class:`~sb3_latentswarm.agent.LatentSwarmAgent` or :class:`~sb3_latentswarm.agent.OnnxSwarmAgent`
+        of a model trained on the swarm env (the wire carries ``local_obs`` and ``proprio``, whose first entries are p_t)
+    :raise ValueError: for an agent of a model trained on an adapted env (it reads p_t elsewhere, or none): step it
+        with its own env's observations instead
     """
 
     def __init__(self, agent: Any, index: int) -> None:
+        spec = agent.spec
+        if spec.position_key != "proprio":
+            raise ValueError(
+                "the UAV process simulator flies the swarm env's layout (p_t in proprio); this agent's model was trained "
+                f"on an adapted env (position_key={spec.position_key!r}): step LatentSwarmAgent / OnnxSwarmAgent with "
+                "that env's observations"
+            )
         self.agent = agent
         self.index = int(index)
-        spec = agent.spec
         self.spec = WireSpec(int(np.prod(spec.local_obs_shape)), spec.proprio_dim, spec.message_dim, spec.action_dim,
                              bool(agent.delay_aware), int(agent.message_expiry))
         self._noise: np.random.Generator | None = None

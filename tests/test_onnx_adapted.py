@@ -201,3 +201,25 @@ def test_the_uav_process_simulator_refuses_an_adapted_model(exported, name):
     for agent in (OnnxSwarmAgent(path), LatentSwarmAgent(model)):
         with pytest.raises(ValueError, match="adapted env"):
             InProcessSwarm([agent])
+
+
+def test_a_deployment_mistake_is_named_before_any_work(exported, tmp_path):
+    """A saved model handed to the ONNX runtime, a 2-D position, an export into a missing folder, and an adapted file
+    handed to the UAV processes: each a clear error before any work (no process started, no file written)."""
+    from sb3_latentswarm.agent.processes import ProcessSwarm
+
+    model, path, _ = exported("simple_spread_positions")
+    model.save(tmp_path / "saved.zip")
+    with pytest.raises(ValueError, match="is a zip file .* LatentSwarmAgent"):
+        OnnxSwarmAgent(tmp_path / "saved.zip")
+    agent = OnnxSwarmAgent(path)
+    agent.reset(seed=0)
+    space = model.observation_space
+    obs = {key: np.zeros(space[key].shape, np.float32) for key in ("local_obs", "proprio")}
+    with pytest.raises(ValueError, match=r"got \(2,\) \(2-D positions are padded with z = 0"):
+        agent.step({**obs, "position": np.zeros(2)}, np.zeros((0, agent.message_dim)))
+    with pytest.raises(FileNotFoundError, match="missing.*its folder does not exist"):
+        export_onnx(model, tmp_path / "missing" / "x.onnx")
+    assert not (tmp_path / "missing").exists()
+    with pytest.raises(ValueError, match="adapted env"):
+        ProcessSwarm(path, 2)

@@ -177,6 +177,7 @@ def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 1
     :raise ImportError: without ``onnx`` and ``onnxruntime`` (``pip install "sb3-latentswarm[deploy]"``)
     :raise RuntimeError: when onnxruntime and torch disagree beyond the tolerance (nothing is written)
     :raise ValueError: for ``n_check_steps`` < 1
+    :raise FileNotFoundError: when ``path``'s folder does not exist (before any work)
 
     A delay-aware policy (``delay_aware=True``) is exported in format 2, with its age input; a policy trained on an
     adapted env in format 3 (4 when delay-aware), with its layout's inputs (the module docstring).
@@ -188,6 +189,8 @@ def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 1
     spec = agent_spec(policy)
     if int(n_check_steps) < 1:
         raise ValueError(f"n_check_steps must be >= 1, got {n_check_steps}")
+    if not os.path.isdir(os.path.dirname(os.path.abspath(path))):  # before the export's work, not after it
+        raise FileNotFoundError(f"cannot write {os.fspath(path)!r}: its folder does not exist")
     module = AgentStep(policy).to("cpu").eval()
     was_device = policy.device
     policy.to("cpu")

@@ -99,7 +99,8 @@ def check_step(spec: AgentSpec, observation: Any, received_messages: Any, determ
     if spec.position_key == "position":
         position = _numeric("observation['position']", observation["position"])
         if position.shape != (spec.position_dims,):
-            raise ValueError(f"observation['position'] must have shape ({spec.position_dims},), got {position.shape}")
+            pad = " (2-D positions are padded with z = 0, as the adapter does)" if position.shape == (2,) else ""
+            raise ValueError(f"observation['position'] must have shape ({spec.position_dims},), got {position.shape}{pad}")
     if not all(np.isfinite(x).all() for x in (local_obs, proprio, *(() if position is None else (position,)))):
         raise ValueError("observation holds a non-finite value (NaN or inf)")
 

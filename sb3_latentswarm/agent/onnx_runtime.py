@@ -47,8 +47,8 @@ class OnnxSwarmAgent:
     :param intra_op_num_threads: threads of one step (default 1: one UAV's step is small, and a computer on a UAV runs
         other processes)
     :raise ImportError: without onnxruntime (``pip install "sb3-latentswarm[deploy]"``)
-    :raise ValueError: for a file without the metadata :func:`export_onnx` writes, of a format this runtime does not
-        read (:data:`FORMATS`), or whose format does not match its metadata
+    :raise ValueError: for a zip file (a saved model), a file without the metadata :func:`export_onnx` writes, of a
+        format this runtime does not read (:data:`FORMATS`), or whose format does not match its metadata
 
     A file of an adapted env's policy (format 3 or 4) takes the observations that
     :class:`~sb3_latentswarm.agent.LatentSwarmAgent` takes for that policy: ``local_obs``, ``proprio`` (e_dim may be
@@ -59,6 +59,11 @@ class OnnxSwarmAgent:
                  intra_op_num_threads: int = 1) -> None:
         import onnxruntime as ort
 
+        with open(path, "rb") as handle:
+            if handle.read(4) == b"PK\x03\x04":
+                raise ValueError(f"{os.fspath(path)!r} is a zip file (a saved LatentSwarmPPO?): OnnxSwarmAgent reads "
+                                 "the .onnx files of export_onnx; step a saved model with "
+                                 "LatentSwarmAgent(LatentSwarmPPO.load(path))")
         options = ort.SessionOptions()
         options.intra_op_num_threads = int(intra_op_num_threads)
         self.session = ort.InferenceSession(os.fspath(path), options, providers=providers or ["CPUExecutionProvider"])

@@ -104,6 +104,8 @@ class ProcessSwarm:
     :param startup_timeout: seconds for every process to load its model and say hello
     :param idle_timeout: a UAV process exits when the simulator has been silent this long
     :raise PortInUseError: when ``port`` is taken
+    :raise ValueError: for an ``.onnx`` file of a model trained on an adapted env (formats 3 and 4), before any process
+        starts (a saved adapted model is refused by each UAV process as it starts: the ``RuntimeError`` below)
     :raise RuntimeError: when a UAV process exits before it is ready (its error in the message, e.g. a taken port) or
         is not ready after ``startup_timeout``
     """
@@ -113,6 +115,10 @@ class ProcessSwarm:
         self.n_agents = check_int("n_agents", n_agents, low=1)
         check_int("port", port, 0, 65_535)
         check_int("uav_port", uav_port, 0, 65_535 - self.n_agents)
+        if os.fspath(model).endswith(".onnx"):  # an adapted model's file is refused here, not by N processes after start
+            from sb3_latentswarm.agent.onnx_runtime import OnnxSwarmAgent
+
+            UavNode(OnnxSwarmAgent(model), 0)
         self.sock = bind_udp(port)
         self.port = int(self.sock.getsockname()[1])
         self.procs: list[subprocess.Popen[bytes]] = []

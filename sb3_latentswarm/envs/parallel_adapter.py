@@ -248,6 +248,8 @@ class AdaptedVecEnv(VecEnv):
                     f"position_fn must return the positions as an (N, 2) or (N, 3) array with N = {n} agents, got "
                     f"shape {position.shape} after {when}"
                 )
+            if not np.isfinite(position).all():
+                raise ValueError(f"position_fn returned a non-finite position (NaN or inf) after {when}")
             if position.shape[1] == 2:
                 position = np.concatenate([position, np.zeros((n, 1))], axis=1)
             out[POSITION_KEY] = position
@@ -422,8 +424,9 @@ def _env_state(env: Any) -> np.ndarray:
     try:
         return env.state()
     except (AttributeError, NotImplementedError) as error:
+        reason = f" ({error})" if str(error) else ""
         raise ValueError(
-            f"{type(env).__name__}.state() is not available ({error}): pass state_fn(env) -> array, the global state the "
+            f"{type(env).__name__}.state() is not available{reason}: pass state_fn(env) -> array, the global state the "
             "centralized critic reads"
         ) from None
 

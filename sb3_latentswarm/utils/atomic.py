@@ -46,6 +46,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     ``path`` is left as it was.
     """
     final = Path(path)
+    if not final.parent.is_dir():  # (mkstemp would name its temporary file, not the path asked for)
+        raise FileNotFoundError(f"cannot write {os.fspath(path)!r}: the folder {os.fspath(final.parent)!r} does not exist")
     fd, tmp_name = tempfile.mkstemp(prefix=f".{final.stem}.", suffix=f".tmp{final.suffix}", dir=final.parent)
     try:
         os.fchmod(fd, _file_mode(final))

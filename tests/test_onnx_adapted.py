@@ -223,3 +223,12 @@ def test_a_deployment_mistake_is_named_before_any_work(exported, tmp_path):
     assert not (tmp_path / "missing").exists()
     with pytest.raises(ValueError, match="adapted env"):
         ProcessSwarm(path, 2)
+
+
+def test_a_uav_process_given_an_adapted_model_exits_with_one_line(exported, capsys):
+    from sb3_latentswarm.agent.uav_process import EXIT_BAD_MODEL, main
+
+    _, path, _ = exported("rendezvous_no_positions")
+    assert main(["--index", "0", "--sim-port", "9", "--model", str(path)]) == EXIT_BAD_MODEL
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "adapted env" in err

@@ -124,6 +124,8 @@ def test_bad_input_is_refused_before_any_training():
         make_adapted_vec_env(Heterogeneous, 1)
     with pytest.raises(ValueError, match=r"position_fn must return .* got shape \(3,\)"):
         make_adapted_vec_env(Rendezvous, 1, position_fn=lambda env: env.x)
+    with pytest.raises(TypeError, match=r"LinkSpec got unknown field\(s\) \['link_modle'\]"):
+        LinkSpec(link_modle="distance")
     with pytest.raises(ValueError, match=r"position_fn returned a non-finite position"):
         make_adapted_vec_env(Rendezvous, 1, position_fn=lambda env: np.full((len(env.possible_agents), 2), np.nan))
     with pytest.raises(ValueError, match=r"referent_fn changed shape from \(1,\) to \(2,\)"):

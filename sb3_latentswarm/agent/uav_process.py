@@ -22,7 +22,7 @@ import numpy as np
 from sb3_latentswarm.agent.wire import HOST, MAX_DATAGRAM, Kind, PortInUseError, Wire, WireSpec, bind_udp
 from sb3_latentswarm.utils.seeding import action_noise_rng
 
-__all__ = ["EXIT_BAD_PORT", "EXIT_IDLE", "EXIT_ORPHANED", "UavNode", "load_agent", "main", "serve"]
+__all__ = ["EXIT_BAD_MODEL", "EXIT_BAD_PORT", "EXIT_IDLE", "EXIT_ORPHANED", "UavNode", "load_agent", "main", "serve"]
 
 EXIT_BAD_PORT = 2
 """Exit status when the UAV's port is taken."""
@@ -30,6 +30,8 @@ EXIT_IDLE = 3
 """Exit status when the simulator was silent for ``--idle-timeout`` seconds."""
 EXIT_ORPHANED = 4
 """Exit status when the process that started this one is gone."""
+EXIT_BAD_MODEL = 5
+"""Exit status when ``--model`` cannot be read or is refused (e.g. a model trained on an adapted env)."""
 
 
 def load_agent(path: str) -> Any:
@@ -162,7 +164,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"UAV {args.index}: {error.strerror}", file=sys.stderr, flush=True)
         return EXIT_BAD_PORT
     with sock:
-        return serve(sock, UavNode(load_agent(args.model), args.index), args.sim_port, args.idle_timeout)
+        try:
+            node = UavNode(load_agent(args.model), args.index)
+        except (OSError, TypeError, ValueError) as error:
+            print(f"UAV {args.index}: {args.model}: {error}", file=sys.stderr, flush=True)
+            return EXIT_BAD_MODEL
+        return serve(sock, node, args.sim_port, args.idle_timeout)
 
 
 if __name__ == "__main__":

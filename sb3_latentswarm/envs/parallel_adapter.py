@@ -37,6 +37,7 @@ link model that needs positions without ``position_fn``, a delayed link model wi
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -76,6 +77,10 @@ class LinkSpec:
         if "n_agents" in fields:
             raise ValueError("LinkSpec takes the link fields only; the adapter sets n_agents from the env")
         fields.setdefault("link_mode", "channel")
+        unknown = sorted(set(fields) - {f.name for f in dataclasses.fields(SwarmConfig)})
+        if unknown:
+            raise TypeError(f"LinkSpec got unknown field(s) {unknown}: it takes SwarmConfig's link fields (link_model, "
+                            "link_mode, p_fail, outage_model, mean_outage_steps, link_range, message_delay, ...)")
         SwarmConfig(**fields)  # validated now, not at the first step
         object.__setattr__(self, "fields", dict(fields))
 

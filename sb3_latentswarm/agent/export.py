@@ -56,7 +56,7 @@ from torch import nn
 
 from sb3_latentswarm.agent.agent import agent_spec, policy_of
 from sb3_latentswarm.agent.onnx_runtime import FORMATS, onnx_io_names
-from sb3_latentswarm.envs.observations import POSITION_KEY
+from sb3_latentswarm.envs.observations import POSITION_KEY, SWARM_LAYOUT
 from sb3_latentswarm.latent_ppo.policies import LatentSwarmPolicy
 from sb3_latentswarm.latent_ppo.recurrence import AgentInputs, Blocks, agent_update, gru_cell, outgoing_message
 from sb3_latentswarm.latent_ppo.type_aliases import LatentState
@@ -116,7 +116,12 @@ def _io_names(policy: LatentSwarmPolicy) -> tuple[tuple[str, ...], tuple[str, ..
 def _export_format(policy: LatentSwarmPolicy) -> int:
     """The export format of ``policy``'s file (:data:`~sb3_latentswarm.agent.onnx_runtime.FORMATS`): 1 or 2 on the
     swarm env's layout, 3 or 4 on an adapted env's (2 and 4: delay-aware)."""
-    return FORMATS[policy.layout.position_key != "proprio", policy.delay_aware]
+    return FORMATS[_adapted(policy), policy.delay_aware]
+
+
+def _adapted(policy: LatentSwarmPolicy) -> bool:
+    """Whether ``policy`` was trained on an adapted env (p_t not read from ``proprio``: formats 3 and 4)."""
+    return policy.layout.position_key != SWARM_LAYOUT.position_key
 
 
 def _agent_inputs(policy: LatentSwarmPolicy, named: dict[str, th.Tensor]) -> AgentInputs:
@@ -214,7 +219,7 @@ def export_onnx(model: Any, path: str | os.PathLike[str], n_check_steps: int = 1
             "message_substitute": policy.message_substitute, "no_memory": policy.no_memory,
             "trained_autocast": policy.autocast,
         }
-        if policy.layout.position_key != "proprio":  # (formats 3 and 4: the adapted layout)
+        if _adapted(policy):  # (formats 3 and 4: the adapted layout)
             metadata.update(position_key=spec.position_key, position_dims=spec.position_dims)
         if policy.delay_aware:
             metadata.update(delay_aware=True, message_expiry=policy.message_expiry)
@@ -253,7 +258,7 @@ def _check_episode(policy: LatentSwarmPolicy, n_steps: int, seed: int) -> list[t
     n = 3
     local_shape = local_space.shape
     module = AgentStep(policy).eval()
-    position_space = cast(spaces.Box, policy.observation_space[POSITION_KEY]) if "position" in module.input_names else None
+    position_space = cast(spaces.Box, policy.observation_space[POSITION_KEY]) if POSITION_KEY in module.input_names else None
     state = [np.zeros((n, dim), dtype=np.float32) for dim in _state_dims(policy)]
     n_states = len(state)
     message = np.zeros((n, policy.message_dim), dtype=np.float32)
